@@ -1,0 +1,83 @@
+"""Template for saliency detectors: frame validation, then ``saliency()``, then regions.
+
+Subclasses implement ``_saliency(image, frame) -> float32 (H, W) in [0, 1]`` and, when they keep
+temporal state, ``_reset()``. ``detect`` validates the frame (dtype, shape, channels, size),
+resets on a resolution change, and hands the map to :func:`regions.find_regions`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from eaglemission.detectors.regions import RegionsConfig, find_regions
+from eaglemission.errors import InputError
+from eaglemission.types import DetectionResult, Frame, Saliency, TargetPrior
+
+
+class DetectorConfig(BaseModel):
+    """Base of every detector's params; ``regions`` configures thresholding and filtering."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    regions: RegionsConfig = Field(default_factory=RegionsConfig)
+
+
+class SaliencyDetector:
+    """Base class of the built-in detectors (a template method, aerostack2 style)."""
+
+    Config: ClassVar[type[BaseModel]] = DetectorConfig
+    description: ClassVar[str] = ""
+
+    def __init__(self, config: BaseModel | None = None, **context: Any) -> None:
+        self.config: Any = config if config is not None else self.Config()
+        self._shape: tuple[int, int] | None = None
+
+    # -- to implement ---------------------------------------------------------------------------
+    def _saliency(self, image: np.ndarray, frame: Frame) -> Saliency:
+        raise NotImplementedError
+
+    def _reset(self) -> None:
+        """Drop temporal state (override when there is any)."""
+
+    # -- public ---------------------------------------------------------------------------------
+    def reset(self) -> None:
+        self._shape = None
+        self._reset()
+
+    def saliency(self, frame: Frame) -> Saliency:
+        image = validate_image(frame.image)
+        shape = (image.shape[0], image.shape[1])
+        if self._shape is not None and shape != self._shape:
+            self._reset()  # resolution change: temporal state no longer applies
+        self._shape = shape
+        sal = self._saliency(image, frame)
+        if sal.shape != shape or sal.dtype != np.float32:
+            raise RuntimeError(
+                f"{type(self).__name__}._saliency returned {sal.dtype} {sal.shape}, "
+                f"expected float32 {shape}")
+        return sal
+
+    def detect(self, frame: Frame, prior: TargetPrior | None = None) -> DetectionResult:
+        sal = self.saliency(frame)
+        regions_cfg = getattr(self.config, "regions", None) or RegionsConfig()
+        detections, threshold = find_regions(sal, regions_cfg, prior, camera_id=frame.camera_id)
+        return DetectionResult(sal, detections, frame.timestamp_ns, frame.camera_id, frame.seq,
+                               threshold)
+
+
+def validate_image(image: Any) -> np.ndarray:
+    """Accept (H, W, 3) BGR or (H, W) grey uint8 with H, W >= 8; grey becomes 3-channel."""
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"image: must be a numpy array, got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise InputError(f"image: must be uint8 (8-bit BGR or grey), got {image.dtype}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"image: must be (H, W, 3) BGR or (H, W) grey, got shape {image.shape}")
+    if image.shape[0] < 8 or image.shape[1] < 8:
+        raise InputError(f"image: must be at least 8x8 pixels, got {image.shape[1]}x{image.shape[0]}")
+    return image

@@ -1,0 +1,20 @@
+"""CLI subcommands, discovered through the ``eaglemission.commands`` entry-point group.
+
+A command is a :class:`Command`: a help line, a function adding its arguments to an argparse
+parser, and a function running it that returns the process exit code. Plugin folders
+contribute their own commands (``run``, ``detect``, ``sitl-vehicle``, ...) the same way a third
+party would, so the core CLI imports no plugin.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Command:
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]

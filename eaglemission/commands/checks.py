@@ -1,0 +1,54 @@
+"""Cross-section checks run by ``validate`` after the schema: hooks for geometry checks.
+
+A check is a function ``(MissionFile) -> list[str]`` of path-qualified problems. Plugins add
+checks through the ``eaglemission.checks`` entry-point group (the mission plugin checks that the
+standoff keeps the target in the fixed cameras' view).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from importlib.metadata import entry_points
+
+from eaglemission.config import MissionFile
+
+Check = Callable[[MissionFile], list[str]]
+
+
+def core_checks(cfg: MissionFile) -> list[str]:
+    problems: list[str] = []
+    s = cfg.safety
+    m = cfg.mission
+    if not (s.min_altitude_m <= m.cruise_altitude_m <= s.max_altitude_m):
+        problems.append(
+            f"mission.cruise_altitude_m: must lie in the safety altitude band "
+            f"[{s.min_altitude_m}, {s.max_altitude_m}], got {m.cruise_altitude_m}")
+    for speed_name, limit in (("cruise_speed_mps", s.max_horizontal_speed_mps),
+                              ("approach_speed_mps", s.max_horizontal_speed_mps)):
+        v = getattr(m, speed_name)
+        if v > limit:
+            problems.append(f"mission.{speed_name}: exceeds safety.max_horizontal_speed_mps "
+                            f"({limit}), got {v}")
+    from eaglemission.safety_geometry import inside_geofence
+
+    for i, wp in enumerate(m.route):
+        if not inside_geofence(s.geofence, wp.north_m, wp.east_m):
+            problems.append(f"mission.route[{i}]: ({wp.north_m}, {wp.east_m}) lies outside "
+                            f"safety.geofence: move it inside or enlarge the fence")
+    if cfg.simulation is not None:
+        sim = cfg.simulation
+        if not inside_geofence(s.geofence, sim.target_north_m, sim.target_east_m):
+            problems.append("simulation.target_north_m/target_east_m: the simulated target lies "
+                            "outside safety.geofence")
+    return problems
+
+
+def run_checks(cfg: MissionFile) -> list[str]:
+    problems = core_checks(cfg)
+    for ep in entry_points(group="eaglemission.checks"):
+        try:
+            check: Check = ep.load()
+            problems.extend(check(cfg))
+        except Exception as exc:  # a broken check must not hide the others
+            problems.append(f"<check {ep.name}>: failed: {type(exc).__name__}: {exc}")
+    return problems

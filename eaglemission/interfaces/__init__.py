@@ -1,0 +1,9 @@
+"""One Protocol per plugin role. They describe only what the core consumes."""
+
+from eaglemission.interfaces.camera import Camera
+from eaglemission.interfaces.detector import Detector
+from eaglemission.interfaces.estimator import CameraView, Estimator
+from eaglemission.interfaces.mission import Mission
+from eaglemission.interfaces.vehicle import Vehicle
+
+__all__ = ["Camera", "CameraView", "Detector", "Estimator", "Mission", "Vehicle"]
