@@ -4,6 +4,19 @@ Normalise to 0..255, threshold (the paper's fixed T = 120, or adaptive: Otsu / k
 connected regions, minimum bounding rectangle (rotated, ``cv2.minAreaRect``) with its 4 corners
 ordered as docs/conventions.md fixes (clockwise on screen from the top-left), filtered by the
 target prior (projected area range, aspect ratio), ranked by score.
+
+Conventions (docs/detectors.md, "Regions"):
+
+- a pixel belongs to a region when its 8-bit value is strictly above the threshold
+  (``sal8 > T``, OpenCV's ``THRESH_BINARY``); regions are 8-connected outer contours (holes
+  are part of the region);
+- the MBR is fitted to the pixel centres of the region's outline and, by default
+  (``mbr_pixel_edges``), grown by half a pixel on every side so that its corners lie on the
+  pixel *edges*: a 10 x 6 pixel block gives a 10 x 6 rectangle, not 9 x 5, which matters to the
+  PnP of a target a few tens of pixels wide;
+- ``Detection.angle_deg`` is the direction of the rectangle's long side, from +u towards +v
+  (clockwise on screen), in [-90, 90);
+- the score is the region's mean saliency times the square root of its pixel area.
 """
 
 from __future__ import annotations
@@ -20,7 +33,13 @@ from eaglemission.types import Detection, Saliency, TargetPrior
 
 
 class RegionsConfig(BaseModel):
-    """Threshold and region filter settings (every detector's ``regions`` section)."""
+    """Threshold and region filter settings (every detector's ``regions`` section).
+
+    ``normalize: none`` takes the map as the detector gives it in [0, 1] (each detector keeps an
+    absolute scale, so an empty scene can stay below the threshold); ``minmax`` stretches every
+    map to 0..255 first, as the paper does, which always makes the brightest spot reach 255 and
+    therefore always fires on a fixed threshold (docs/paper_choices.md, "Regions").
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -30,53 +49,99 @@ class RegionsConfig(BaseModel):
     normalize: Literal["minmax", "none"] = "none"
     min_area_px: float = Field(16.0, ge=1)
     max_detections: int = Field(5, ge=1, le=100)
+    mbr_pixel_edges: bool = True
+
+
+# Ties in u + v closer than this (pixels) are broken by v (float noise from boxPoints).
+_TIE_PX = 1e-6
 
 
 def order_corners(corners: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Order 4 corners clockwise on screen (u right, v down) starting from the top-left one
-    (smallest ``u + v``; ties broken by smaller ``v``)."""
+    """Order 4 corners clockwise on screen starting from the top-left one.
+
+    Parameters
+    ----------
+    corners : array_like of shape (4, 2)
+        ``(u, v)`` pixel coordinates (u right, v down) of a convex quadrilateral, any order.
+
+    Returns
+    -------
+    ndarray of shape (4, 2), float64
+        Clockwise on screen, first the corner with the smallest ``u + v`` (ties, within 1e-6
+        px: the smaller ``v``), as docs/conventions.md fixes.
+    """
     c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
     centre = c.mean(axis=0)
     # On screen with v down, increasing atan2(v, u) turns clockwise.
     ang = np.arctan2(c[:, 1] - centre[1], c[:, 0] - centre[0])
-    c = c[np.argsort(ang)]
+    c = c[np.argsort(ang, kind="stable")]
     s = c[:, 0] + c[:, 1]
-    start = int(np.lexsort((c[:, 1], s))[0])
+    candidates = np.flatnonzero(s <= s.min() + _TIE_PX)
+    start = int(candidates[np.argmin(c[candidates, 1])])
     return np.roll(c, -start, axis=0)
 
 
 def to_uint8(saliency: Saliency, normalize: str = "none") -> NDArray[np.uint8]:
-    """Map a [0, 1] saliency map to 0..255 (optionally min-max stretched first)."""
+    """Map a [0, 1] saliency map to 0..255 (optionally min-max stretched first).
+
+    Values are rounded to nearest and saturated; NaN and negative values give 0. With
+    ``normalize="minmax"`` a constant map gives all zeros.
+    """
     s = np.asarray(saliency, dtype=np.float32)
     if normalize == "minmax":
-        lo, hi = float(s.min()), float(s.max())
-        s = (s - lo) / (hi - lo) if hi > lo else np.zeros_like(s)
-    return np.clip(s * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        lo, hi = cv2.minMaxLoc(np.nan_to_num(s, nan=0.0, posinf=0.0, neginf=0.0))[:2]
+        if not hi > lo:
+            return np.zeros(s.shape, np.uint8)
+        return cv2.convertScaleAbs(cv2.max(s - np.float32(lo), 0.0), alpha=255.0 / (hi - lo))
+    elif normalize != "none":
+        raise ValueError(f"normalize: must be 'none' or 'minmax', got {normalize!r}")
+    return cv2.convertScaleAbs(cv2.max(s, 0.0), alpha=255.0)
 
 
 def binarize(sal8: NDArray[np.uint8], cfg: RegionsConfig) -> tuple[NDArray[np.uint8], float]:
-    """Binary mask and the threshold used (0..255)."""
+    """Binary mask (0/255, ``sal8 > T``) and the threshold ``T`` used, on 0..255."""
     if cfg.threshold == "otsu":
         t, mask = cv2.threshold(sal8, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
         return mask, float(t)
     if cfg.threshold == "mean":
-        t = min(254.0, max(1.0, cfg.mean_factor * float(sal8.mean())))
+        t = min(254.0, max(1.0, cfg.mean_factor * float(cv2.mean(sal8)[0])))
     else:
         t = float(cfg.fixed_threshold)
     _, mask = cv2.threshold(sal8, t, 255, cv2.THRESH_BINARY)
     return mask, t
 
 
-def _prior_ok(area: float, long_: float, short: float, prior: TargetPrior | None) -> bool:
+def prior_accepts(area_px: float, long_px: float, short_px: float,
+                  prior: TargetPrior | None) -> bool:
+    """Whether a rectangle fits the target prior (area range; aspect ratio within tolerance).
+
+    The aspect test is relative: ``|long/short - ratio| <= tolerance * ratio``; a degenerate
+    rectangle (``short == 0``) fails any aspect prior.
+    """
     if prior is None:
         return True
-    if not (prior.min_area_px <= area <= prior.max_area_px):
+    if not (prior.min_area_px <= area_px <= prior.max_area_px):
         return False
-    if prior.aspect_ratio is not None and short > 0:
-        ratio = long_ / short
+    if prior.aspect_ratio is not None:
+        if short_px <= 0:
+            return False
+        ratio = long_px / short_px
         if abs(ratio - prior.aspect_ratio) > prior.aspect_tolerance * prior.aspect_ratio:
             return False
     return True
+
+
+# kept for callers of the first version
+_prior_ok = prior_accepts
+
+
+def long_side_angle_deg(corners: NDArray[np.float64]) -> float:
+    """Direction of the long side of an ordered rectangle, from +u towards +v, in [-90, 90)."""
+    e1 = corners[1] - corners[0]
+    e2 = corners[2] - corners[1]
+    e = e1 if float(e1 @ e1) >= float(e2 @ e2) else e2
+    a = math.degrees(math.atan2(float(e[1]), float(e[0])))
+    return (a + 90.0) % 180.0 - 90.0
 
 
 def find_regions(
@@ -86,31 +151,52 @@ def find_regions(
     *,
     camera_id: str = "",
 ) -> tuple[tuple[Detection, ...], float]:
-    """Detections ranked by score (mean saliency x sqrt(area)) and the threshold used, in [0, 1]."""
+    """Detections ranked by score and the threshold used, in [0, 1].
+
+    Parameters
+    ----------
+    saliency : ndarray of shape (H, W), float32 in [0, 1]
+    cfg : RegionsConfig
+    prior : TargetPrior, optional
+        Keeps only rectangles whose area (px^2) and aspect ratio fit the target.
+    camera_id : str
+
+    Returns
+    -------
+    detections : tuple of Detection
+        At most ``cfg.max_detections``, best first (score = mean saliency x sqrt(pixel area)).
+    threshold : float
+        The threshold used, divided by 255.
+    """
     sal8 = to_uint8(saliency, cfg.normalize)
     mask, t = binarize(sal8, cfg)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    grow = 1.0 if cfg.mbr_pixel_edges else 0.0
+    sal = np.asarray(saliency, dtype=np.float32)
     found: list[Detection] = []
     for cnt in contours:
-        area = float(cv2.contourArea(cnt))
-        if area < cfg.min_area_px and len(cnt) < 3:
+        x, y, bw, bh = cv2.boundingRect(cnt)
+        # boundingRect counts pixels, so bw * bh bounds every area below from above.
+        if bw * bh < cfg.min_area_px:
             continue
         (cu, cv), (w, h), angle = cv2.minAreaRect(cnt)
-        rect_area = float(w * h)
-        if max(area, rect_area) < cfg.min_area_px:
+        w, h = float(w) + grow, float(h) + grow
+        rect_area = w * h
+        if rect_area < cfg.min_area_px:
             continue
         long_, short = (w, h) if w >= h else (h, w)
-        if not _prior_ok(rect_area, long_, short, prior):
+        if not prior_accepts(rect_area, long_, short, prior):
             continue
-        x, y, bw, bh = cv2.boundingRect(cnt)
-        roi = saliency[y : y + bh, x : x + bw]
-        roi_mask = mask[y : y + bh, x : x + bw] > 0
-        mean_sal = float(roi[roi_mask].mean()) if roi_mask.any() else 0.0
-        score = mean_sal * math.sqrt(max(area, 1.0))
+        region = np.zeros((bh, bw), np.uint8)
+        cv2.drawContours(region, [cnt], 0, 255, thickness=cv2.FILLED, offset=(-x, -y))
+        region &= mask[y : y + bh, x : x + bw]
+        n_px = cv2.countNonZero(region)
+        mean_sal = cv2.mean(sal[y : y + bh, x : x + bw], mask=region)[0] if n_px else 0.0
+        score = float(mean_sal) * math.sqrt(max(n_px, 1))
         corners = order_corners(cv2.boxPoints(((cu, cv), (w, h), angle)))
         found.append(Detection(
             score=score, center_px=(float(cu), float(cv)), corners_px=corners,
-            size_px=(float(long_), float(short)), angle_deg=float(angle), area_px=rect_area,
+            size_px=(long_, short), angle_deg=long_side_angle_deg(corners), area_px=rect_area,
             camera_id=camera_id,
         ))
     found.sort(key=lambda d: d.score, reverse=True)

@@ -326,6 +326,8 @@ def _message(err: Mapping[str, Any], model: type[BaseModel] | None) -> str:
         op = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<",
               "less_than_equal": "<="}[kind]
         bound = next(iter(ctx.values()), "?")
+        if isinstance(bound, float):
+            bound = f"{bound:g}"
         return f"must be {op} {bound}, got {_short(value)}"
     if kind == "finite_number":
         return f"must be a finite number, got {_short(value)}"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from eaglemission.config import load_config
+from eaglemission.config import load_config, plugin_problems
 from eaglemission.errors import ConfigError
 
 
@@ -17,8 +17,8 @@ def _run(args: argparse.Namespace) -> int:
     from eaglemission.commands import checks
 
     try:
-        cfg = load_config(args.config)
-        problems = checks.run_checks(cfg)
+        cfg = load_config(args.config, check_plugins=False)
+        problems = plugin_problems(cfg) + checks.run_checks(cfg)
         if problems:
             raise ConfigError(problems, source=args.config or "<embedded>")
     except ConfigError as exc:

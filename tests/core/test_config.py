@@ -1,0 +1,272 @@
+"""Mission configuration: every malformed input gets a path-qualified message, never a crash."""
+
+from __future__ import annotations
+
+import copy
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from eaglemission.config import (
+    DEFAULT_CONFIG,
+    MissionFile,
+    load_config,
+    parse_yaml,
+    validate_mapping,
+)
+from eaglemission.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+SHIPPED = sorted((REPO / "configs").glob("*.yaml"))
+
+
+def shipped_data(name: str = DEFAULT_CONFIG) -> dict[str, Any]:
+    return yaml.safe_load((REPO / "configs" / name).read_text())
+
+
+def mutate(data: dict[str, Any], path: str, value: Any = ..., *, delete: bool = False) -> dict[str, Any]:
+    out = copy.deepcopy(data)
+    node: Any = out
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node[int(k)] if isinstance(node, list) else node[k]
+    last: Any = int(keys[-1]) if isinstance(node, list) else keys[-1]
+    if delete:
+        del node[last]
+    else:
+        node[last] = value
+    return out
+
+
+def errors_of(data: Any) -> str:
+    with pytest.raises(ConfigError) as exc:
+        validate_mapping(data, check_plugins=False)
+    return str(exc.value)
+
+
+@pytest.mark.parametrize("name", [p.name for p in SHIPPED])
+def test_shipped_configs_pass_the_schema(name: str) -> None:
+    cfg = validate_mapping(shipped_data(name), check_plugins=False)
+    assert isinstance(cfg, MissionFile)
+
+
+def test_embedded_default_is_the_shipped_sitl_config() -> None:
+    assert load_config(check_plugins=False) == validate_mapping(shipped_data(), check_plugins=False)
+
+
+def test_models_are_frozen_and_loading_does_not_mutate_input() -> None:
+    data = shipped_data()
+    before = copy.deepcopy(data)
+    cfg = validate_mapping(data, check_plugins=False)
+    assert data == before
+    with pytest.raises(Exception):
+        cfg.mission.cruise_altitude_m = 3.0  # type: ignore[misc]
+
+
+# (mutation path, value or DELETE, expected fragment of the message)
+DELETE = object()
+MUTATIONS: list[tuple[str, Any, str]] = [
+    ("cameras.narrow.focal_length_mm", -12, "cameras.narrow.focal_length_mm: must be > 0, got -12"),
+    ("cameras.wide.focal_length_mm", 0, "cameras.wide.focal_length_mm: must be > 0, got 0"),
+    ("cameras.wide.focal_length_mm", "abc", "cameras.wide.focal_length_mm: must be a number, got 'abc'"),
+    ("cameras.wide.focal_length_mm", float("nan"), "cameras.wide.focal_length_mm: must be a finite number"),
+    ("cameras.wide.pixel_size_um", float("inf"), "cameras.wide.pixel_size_um: must be a finite number"),
+    ("cameras.wide.resolution_px", [1280], "cameras.wide.resolution_px"),
+    ("cameras.wide.resolution_px", [1280, -960], "cameras.wide.resolution_px[1]: must be > 0, got -960"),
+    ("cameras.wide.shutter", "diagonal", "cameras.wide.shutter: must be one of 'global' or 'rolling'"),
+    ("cameras.wide.mount.pitch_deg", -120, "cameras.wide.mount.pitch_deg: must be >= -90, got -120"),
+    ("cameras.wide.mount.lever_arm_m", [0.1, 0.2], "cameras.wide.mount.lever_arm_m"),
+    ("cameras.wide.mount.pich_deg", -30, "cameras.wide.mount.pich_deg: unknown key; did you mean 'pitch_deg'?"),
+    ("cameras.wide.distortion", [0.1, 0.2, 0.3], "distortion: OpenCV takes 4, 5, 8, 12 or 14 coefficients, got 3"),
+    ("cameras.narrow", DELETE, "cameras.narrow: required key is missing"),
+    ("cameras.wide.type", DELETE, "cameras.wide.type: required key is missing"),
+    ("cameras.wide", "a string", "cameras.wide: must be a mapping"),
+    ("vehicle", DELETE, "vehicle: required key is missing"),
+    ("vehicle.params", [1, 2], "vehicle.params"),
+    ("vehicel", {"type": "simulated"}, "vehicel: unknown key; did you mean 'vehicle'?"),
+    ("target.length_m", -0.4, "target.length_m: must be > 0, got -0.4"),
+    ("target.height_m", -1, "target.height_m: must be >= 0, got -1"),
+    ("target.color_bgr", [0, 0, 300], "target.color_bgr[2]: must be <= 255, got 300"),
+    ("target.color_bgr", [0, 0], "color_bgr: needs 3 values"),
+    ("tool_point_m", [0, 0, "x"], "tool_point_m[2]: must be a number, got 'x'"),
+    ("mission.route", [], "mission.route: list should have at least 1 item"),
+    ("mission.route.0.north_m", None, "mission.route[0].north_m: must be a number, got None"),
+    ("mission.route.0.up_m", 3, "mission.route[0].up_m: unknown key"),
+    ("mission.cruise_altitude_m", -5, "mission.cruise_altitude_m: must be > 0, got -5"),
+    ("mission.grasp_distance_m", 5, "mission.grasp_distance_m: must be <= 2, got 5"),
+    ("mission.confirm_frames", 2.5, "mission.confirm_frames: must be an integer, got 2.5"),
+    ("mission.timeouts.fine_approach_s", -1, "mission.timeouts.fine_approach_s: must be > 0, got -1"),
+    ("mission.on_done", "crash", "mission.on_done: must be one of 'land', 'return' or 'hold'"),
+    ("mission.route_frame", "lla", "mission.route_frame: must be one of 'ned_home'"),
+    ("safety.max_altitude_m", 0, "safety.max_altitude_m: must be > 0, got 0"),
+    ("safety.min_altitude_m", 25, "min_altitude_m (25.0) must be below max_altitude_m (20.0)"),
+    ("safety.geofence.polygon_ned_m", [[0, 0], [1, 1]], "polygon_ned_m: needs at least 3 vertices"),
+    ("safety.low_battery_fraction", 1.5, "safety.low_battery_fraction: must be <= 1, got 1.5"),
+    ("safety.link_loss_action", "panic", "safety.link_loss_action: must be one of 'hold', 'return' or 'land'"),
+    ("safety.on_violation", True, "safety.on_violation: must be one of 'clamp' or 'refuse'"),
+    ("simulation.mount_error_deg", 45, "simulation.mount_error_deg: must be <= 10, got 45"),
+    ("simulation.seed", "seven", "simulation.seed: must be an integer, got 'seven'"),
+    ("estimators.fine", DELETE, "estimators.fine: required key is missing"),
+    ("estimators.coarse.kind", "bearing", "estimators.coarse.kind: unknown key; allowed keys: type, params"),
+    ("detector", None, "detector: must be a mapping"),
+]
+
+
+@pytest.mark.parametrize(("path", "value", "expected"), MUTATIONS, ids=[m[0] + "=" + repr(m[1])[:20] for m in MUTATIONS])
+def test_malformed_variant_of_shipped_config(path: str, value: Any, expected: str) -> None:
+    data = shipped_data()
+    data = mutate(data, path, delete=True) if value is DELETE else mutate(data, path, value)
+    msg = errors_of(data)
+    assert expected in msg, msg
+
+
+def test_every_error_is_reported_at_once() -> None:
+    data = mutate(shipped_data(), "mission.cruise_altitude_m", -5)
+    data = mutate(data, "target.width_m", 0)
+    msg = errors_of(data)
+    assert "mission.cruise_altitude_m" in msg and "target.width_m" in msg and "2 problems" in msg
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("", "empty file"),
+        ("# only a comment\n", "empty file"),
+        ("- a\n- b\n", "<top level>: must be a mapping of sections, got list"),
+        ("42\n", "<top level>: must be a mapping of sections, got int"),
+        ("vehicle: {type: simulated\n", "YAML error"),
+        ("a: b\n  c: d\n", "line 2"),
+        ("vehicle: !!python/object/apply:os.system ['echo hi']\n", "python/object tags are not allowed"),
+        ("vehicle: !!python/name:os.system ''\n", "python/object tags are not allowed"),
+        ("vehicle: {type: simulated}\nvehicle: {type: mavsdk}\n", "duplicate key 'vehicle'"),
+        ("1: {type: x}\n", "section names must be strings"),
+        ("\t- tab\n", "YAML error"),
+        ("&a [*a]\n", "<top level>"),
+    ],
+)
+def test_malformed_text(text: str, expected: str) -> None:
+    with pytest.raises(ConfigError) as exc:
+        validate_mapping(parse_yaml(text), check_plugins=False)
+    assert expected in str(exc.value), str(exc.value)
+
+
+def test_missing_binary_and_directory_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="file not found"):
+        load_config(tmp_path / "nope.yaml")
+    (tmp_path / "bin.yaml").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR")
+    with pytest.raises(ConfigError, match="binary file"):
+        load_config(tmp_path / "bin.yaml")
+    (tmp_path / "latin.yaml").write_bytes("vehicle: caf\xe9\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match="not UTF-8"):
+        load_config(tmp_path / "latin.yaml")
+    with pytest.raises(ConfigError, match="is a directory"):
+        load_config(tmp_path)
+
+
+# -- property test: random YAML never produces an unhandled exception -------------------------
+scalars = st.one_of(
+    st.none(), st.booleans(), st.integers(-10**6, 10**6),
+    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12),
+)
+yaml_values = st.recursive(
+    scalars,
+    lambda children: st.one_of(
+        st.lists(children, max_size=4),
+        st.dictionaries(st.one_of(st.text(max_size=10), st.sampled_from(
+            ["vehicle", "cameras", "wide", "narrow", "type", "params", "mission", "route",
+             "target", "safety", "focal_length_mm", "length_m", "estimators", "detector"])),
+            children, max_size=5),
+    ),
+    max_leaves=25,
+)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(yaml_values)
+def test_random_documents_never_crash(doc: Any) -> None:
+    try:
+        text = yaml.safe_dump(doc)
+    except yaml.YAMLError:
+        return
+    try:
+        validate_mapping(parse_yaml(text), check_plugins=False)
+    except ConfigError as exc:
+        assert str(exc)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(max_size=200))
+def test_random_text_never_crashes(text: str) -> None:
+    try:
+        validate_mapping(parse_yaml(text), check_plugins=False)
+    except ConfigError as exc:
+        assert str(exc)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from([m[0] for m in MUTATIONS if "." in m[0]]), scalars)
+def test_random_mutations_of_shipped_config(path: str, value: Any) -> None:
+    try:
+        data = mutate(shipped_data(), path, value)
+    except (KeyError, IndexError, TypeError, ValueError):
+        return
+    try:
+        validate_mapping(data, check_plugins=False)
+    except ConfigError as exc:
+        assert str(exc)
+        if isinstance(value, float) and not math.isfinite(value):
+            assert "finite" in str(exc) or "must be" in str(exc)
+
+
+# -- the CLI: exit codes and no tracebacks ----------------------------------------------------
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "eaglemission.cli", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["", "[1, 2]", "vehicle: !!python/object/apply:os.system ['echo pwned']",
+     "cameras: {wide: {focal_length_mm: -1}}", "\x00\x01binary"],
+)
+def test_validate_cli_rejects_without_traceback(tmp_path: Path, text: str) -> None:
+    f = tmp_path / "bad.yaml"
+    f.write_bytes(text.encode("utf-8"))
+    r = run_cli("validate", str(f))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and "invalid:" in r.stderr
+    assert "pwned" not in r.stdout
+
+
+def test_validate_cli_names_the_path_and_value(tmp_path: Path) -> None:
+    data = mutate(shipped_data(), "cameras.narrow.focal_length_mm", -12)
+    f = tmp_path / "m.yaml"
+    f.write_text(yaml.safe_dump(data))
+    r = run_cli("validate", str(f))
+    assert r.returncode == 2
+    assert "cameras.narrow.focal_length_mm: must be > 0, got -12" in r.stderr
+
+
+def test_validate_cli_accepts_shipped_sitl_config() -> None:
+    r = run_cli("validate", str(REPO / "configs" / "sitl_synthetic.yaml"))
+    assert r.returncode == 0, r.stderr
+    r = run_cli("validate")
+    assert r.returncode == 0, r.stderr
+
+
+def test_validate_cli_cross_checks(tmp_path: Path) -> None:
+    data = mutate(shipped_data(), "mission.route.1.north_m", 500.0)
+    data = mutate(data, "mission.cruise_speed_mps", 9.0)
+    f = tmp_path / "m.yaml"
+    f.write_text(yaml.safe_dump(data))
+    r = run_cli("validate", str(f))
+    assert r.returncode == 2
+    assert "mission.route[1]: (500.0, 0.0) lies outside safety.geofence" in r.stderr
+    assert "mission.cruise_speed_mps: exceeds safety.max_horizontal_speed_mps" in r.stderr
