@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
+from eaglemission.detectors.regions import RegionsConfig, find_regions
 from pydantic import BaseModel, ConfigDict, Field
 
-from eaglemission.detectors.regions import RegionsConfig, find_regions
 from eaglemission.errors import InputError
 from eaglemission.types import DetectionResult, Frame, Saliency, TargetPrior
 
@@ -66,6 +67,26 @@ class SaliencyDetector:
         detections, threshold = find_regions(sal, regions_cfg, prior, camera_id=frame.camera_id)
         return DetectionResult(sal, detections, frame.timestamp_ns, frame.camera_id, frame.seq,
                                threshold)
+
+
+def shrink(image: np.ndarray, factor: int) -> np.ndarray:
+    """``image`` at 1/``factor`` resolution (area averaging); ``factor`` 1 returns it unchanged.
+
+    Used by detectors that offer ``downscale`` (process at 1/k resolution, map upsampled).
+    """
+    if factor <= 1:
+        return image
+    h, w = image.shape[:2]
+    size = (max(1, round(w / factor)), max(1, round(h / factor)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
+def to_frame_size(sal: np.ndarray, shape: tuple[int, int]) -> Saliency:
+    """A map resized (bilinear) to ``shape`` = (H, W), as float32 clipped to [0, 1]."""
+    sal = np.asarray(sal, dtype=np.float32)
+    if sal.shape[:2] != shape:
+        sal = cv2.resize(sal, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    return np.clip(sal, 0.0, 1.0, out=sal if sal.flags.writeable else None)
 
 
 def validate_image(image: Any) -> np.ndarray:

@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import yaml
+from pydantic import ValidationError
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -66,7 +67,7 @@ def test_models_are_frozen_and_loading_does_not_mutate_input() -> None:
     before = copy.deepcopy(data)
     cfg = validate_mapping(data, check_plugins=False)
     assert data == before
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError):
         cfg.mission.cruise_altitude_m = 3.0  # type: ignore[misc]
 
 
@@ -270,3 +271,11 @@ def test_validate_cli_cross_checks(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert "mission.route[1]: (500.0, 0.0) lies outside safety.geofence" in r.stderr
     assert "mission.cruise_speed_mps: exceeds safety.max_horizontal_speed_mps" in r.stderr
+
+
+def test_configuration_reference_is_up_to_date() -> None:
+    from eaglemission.config_doc import schema_markdown
+
+    doc = (REPO / "docs" / "configuration.md").read_text()
+    assert doc.strip() == schema_markdown().strip(), (
+        "docs/configuration.md is stale: run `python -m eaglemission.config_doc > docs/configuration.md`")
