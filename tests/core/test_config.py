@@ -11,9 +11,9 @@ from typing import Any
 
 import pytest
 import yaml
-from pydantic import ValidationError
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from eaglemission.config import (
     DEFAULT_CONFIG,
