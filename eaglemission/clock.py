@@ -104,7 +104,7 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         super().__init__()
         self._virtual_s = float(start_s)
         self.busy_workers = 0
-        self._selector = _VirtualSelector(self._selector, self)  # type: ignore[has-type,assignment]
+        self._selector = _VirtualSelector(self._selector, self)  # type: ignore[has-type,arg-type]
         self._clock_resolution = 1e-9
 
     def time(self) -> float:

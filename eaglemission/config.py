@@ -365,7 +365,7 @@ def format_validation_error(
 # ---------------------------------------------------------------------------------------------
 # YAML loading
 # ---------------------------------------------------------------------------------------------
-class _UniqueKeyLoader(yaml.SafeLoader):
+class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]
     """SafeLoader that rejects duplicate keys (yaml.safe_load keeps the last silently)."""
 
 

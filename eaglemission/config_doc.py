@@ -85,7 +85,7 @@ def schema_markdown() -> str:
             if info.default is not PydanticUndefined:
                 default = repr(info.default)
             elif info.default_factory is not None:
-                default = "(see below)" if _model_of(info.annotation) else repr(info.default_factory())
+                default = "(see below)" if _model_of(info.annotation) else repr(info.default_factory())  # type: ignore[call-arg]
             else:
                 default = "**required**"
             lines.append(f"| `{name}` | {_type_name(info.annotation)} | {default} | {_constraints(info)} |")

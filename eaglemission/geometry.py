@@ -281,14 +281,16 @@ class CameraModel:
         """Undistort (n, 2) pixels to normalised image coordinates ``(x/z, y/z)``."""
         px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         if self.distortion and any(self.distortion):
-            return cv2.undistortPoints(px.reshape(-1, 1, 2), self.K, self.dist_array).reshape(-1, 2)
-        return np.column_stack(((px[:, 0] - self.cx) / self.fx, (px[:, 1] - self.cy) / self.fy))
+            und = cv2.undistortPoints(px.reshape(-1, 1, 2), self.K, self.dist_array)
+            return np.asarray(und, dtype=np.float64).reshape(-1, 2)
+        return np.column_stack(((px[:, 0] - self.cx) / self.fx, (px[:, 1] - self.cy) / self.fy)).astype(np.float64)
 
     def rays_optical(self, pixels: ArrayLike) -> Points3:
         """Unit rays in the optical frame through (n, 2) pixels."""
         n = self.normalize(pixels)
         r = np.column_stack((n, np.ones(len(n))))
-        return r / np.linalg.norm(r, axis=1, keepdims=True)
+        out: Points3 = r / np.linalg.norm(r, axis=1, keepdims=True)
+        return out
 
     def in_image(self, pixels: ArrayLike, margin_px: float = 0.0) -> NDArray[np.bool_]:
         p = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
@@ -347,4 +349,5 @@ def intersect_ray_with_horizontal_plane(
     s = (down_m - o[2]) / d[2]
     if s <= 0:
         return None
-    return o + s * d
+    hit: Vec3 = o + s * d
+    return hit
