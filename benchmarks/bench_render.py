@@ -1,0 +1,95 @@
+"""Rendering speed of the synthetic world: both cameras (2.8 mm wide + 12 mm narrow, 1280x960)
+on one core, along the default mission's flight (cruise at 5 m, approach, stand-off).
+
+Usage::
+
+    python benchmarks/bench_render.py [--frames 60] [--threads 1] [--config FILE]
+
+Prints the median and 90th-percentile time per camera and per pair, the pair rate (target:
+>= 30 pairs/s, i.e. both cameras in <= 33 ms), and the ratio to a reference measured in the same
+run: one plain ``cv2.warpPerspective`` of a 1280x960 BGR image (the floor of the ground pass).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import cv2
+import numpy as np
+from eaglemission.drivers.cameras.world import SyntheticWorld
+
+from eaglemission.config import load_config
+from eaglemission.geometry import euler_to_quat
+
+
+def trajectory(cfg, n: int) -> list[tuple[tuple[float, float, float], tuple[float, ...]]]:
+    """Cruise towards the target at 5 m, then descend to the stand-off pose."""
+    sim = cfg.simulation
+    tn, te = sim.target_north_m, sim.target_east_m
+    out = []
+    for i in range(n):
+        s = i / max(1, n - 1)
+        if s < 0.5:  # cruise leg from home
+            pos = (s * 2 * (tn - 8.0), 0.0, -cfg.mission.cruise_altitude_m)
+            yaw = 0.0
+        else:  # approach: to the stand-off
+            a = (s - 0.5) * 2
+            so = cfg.mission.standoff
+            start = np.array([tn - 8.0, 0.0, -cfg.mission.cruise_altitude_m])
+            end = np.array([tn - so.horizontal_m, te, -(so.height_m + cfg.target.height_m)])
+            p = start + a * (end - start)
+            pos = (float(p[0]), float(p[1]), float(p[2]))
+            yaw = math.degrees(math.atan2(te - p[1], tn - p[0]))
+        out.append((pos, euler_to_quat(0.0, -3.0, yaw)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--threads", type=int, default=1, help="OpenCV threads (1 = one core)")
+    ap.add_argument("--config", default=None, help="mission YAML (default: embedded)")
+    args = ap.parse_args()
+    cv2.setNumThreads(args.threads)
+    cfg = load_config(args.config, check_plugins=False)
+    t0 = time.perf_counter()
+    world = SyntheticWorld(cfg.simulation, cfg.target)
+    t_world = time.perf_counter() - t0
+    models = {cid: getattr(cfg.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
+    poses = trajectory(cfg, args.frames)
+    for m in models.values():  # warm-up: per-camera caches (noise bank)
+        world.render(m, poses[0][0], poses[0][1], 1_000_000_000)
+    times: dict[str, list[float]] = {cid: [] for cid in models}
+    pair: list[float] = []
+    for k, (pos, q) in enumerate(poses):
+        t_ns = 1_000_000_000 + k * 33_333_333
+        tp = time.perf_counter()
+        for cid, m in models.items():
+            t = time.perf_counter()
+            world.render(m, pos, q, t_ns)
+            times[cid].append(time.perf_counter() - t)
+        pair.append(time.perf_counter() - tp)
+    # reference: one plain warp of a 1280x960 BGR frame
+    src = np.random.RandomState(0).randint(0, 255, (2048, 2048, 3), np.uint8)
+    M = np.array([[1.2, 0.1, 20.0], [0.05, 1.1, 10.0], [1e-5, 2e-5, 1.0]])
+    ref = []
+    for _ in range(20):
+        t = time.perf_counter()
+        cv2.warpPerspective(src, M, (1280, 960), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+        ref.append(time.perf_counter() - t)
+    ref_ms = float(np.median(ref)) * 1e3
+    print(f"world build (textures {world.extent_m:.0f} m, {world.textures.nbytes / 1e6:.0f} MB): "
+          f"{t_world:.2f} s")
+    print(f"OpenCV threads: {args.threads}; frames: {args.frames}; reference warp: {ref_ms:.2f} ms")
+    for cid, ts in times.items():
+        med, p90 = np.median(ts) * 1e3, np.percentile(ts, 90) * 1e3
+        print(f"  {cid:7s} median {med:6.2f} ms  p90 {p90:6.2f} ms  ({med / ref_ms:.1f} x ref)")
+    med, p90 = np.median(pair) * 1e3, np.percentile(pair, 90) * 1e3
+    print(f"  pair    median {med:6.2f} ms  p90 {p90:6.2f} ms  -> {1e3 / med:.1f} pairs/s "
+          f"(target >= 30: {'met' if 1e3 / med >= 30 else 'NOT met'})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,281 @@
+"""``replay`` camera plugin: frames from image folders, video files or recorded runs.
+
+Sources (``Config.path``), detected in this order:
+
+* a **recorded run** (``<path>/<camera>/frames.csv``, written by
+  :class:`~eaglemission.drivers.cameras.recorder.RunRecorder`): frames stamped with their
+  recorded ``timestamp_ns`` (they match the run's ``telemetry.jsonl``);
+* a **DAVIS-layout sequence** (``<path>/frames/*.jpg``) or any **image folder**
+  (``*.png|*.jpg|*.jpeg|*.bmp|*.tif*``, natural name order);
+* a **video file** (anything ``cv2.VideoCapture`` opens: mp4v .mp4, MJPG/XVID .avi).
+
+Without recorded stamps, frame ``k`` is stamped ``start_ns + k / frame_rate_hz`` (the video's
+own rate when ``frame_rate_hz`` is unset). Pacing ``as_fast_as_consumed`` hands the next
+frame at once; ``realtime`` holds each frame until its offset from the first frame has elapsed
+on the host monotonic clock. Replays are deterministic; past the last frame ``grab`` raises
+:class:`~eaglemission.errors.EndOfStream` (unless ``loop``). An undecodable or wrong-size
+frame raises :class:`~eaglemission.errors.FrameError` (counted; the next grab moves on).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+import threading
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from eaglemission.drivers.cameras.recorder import FRAMES_CSV
+from eaglemission.drivers.cameras.recorder import RunRecorder as Recorder
+from pydantic import BaseModel, ConfigDict, Field
+
+from eaglemission.clock import Clock
+from eaglemission.errors import CameraError, ConfigError, EndOfStream, FrameError, GrabTimeout
+from eaglemission.geometry import CameraModel
+from eaglemission.types import Frame
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+def _natural_key(p: Path) -> list[Any]:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)]
+
+
+def list_images(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                   and p.is_file()), key=_natural_key)
+
+
+class _Entry:
+    __slots__ = ("path", "timestamp_ns", "exposure_s", "seq")
+
+    def __init__(self, path: Path | None, timestamp_ns: int, exposure_s: float, seq: int) -> None:
+        self.path, self.timestamp_ns, self.exposure_s, self.seq = path, timestamp_ns, exposure_s, seq
+
+
+def read_frames_csv(path: Path) -> list[_Entry]:
+    """Rows of a recorded camera's frames.csv (a truncated last row is ignored)."""
+    out: list[_Entry] = []
+    with path.open("r", encoding="utf-8", newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or tuple(rows[0]) != ("seq", "timestamp_ns", "exposure_s", "file"):
+        raise ConfigError(f"{path}: not a frames.csv (header must be "
+                          "seq,timestamp_ns,exposure_s,file)")
+    for i, row in enumerate(rows[1:], start=2):
+        try:
+            seq, ts, exp, name = int(row[0]), int(row[1]), float(row[2]), row[3]
+        except (ValueError, IndexError):
+            if i == len(rows):
+                continue  # interrupted while writing the last line
+            raise ConfigError(f"{path}:{i}: malformed row {row!r}") from None
+        out.append(_Entry(path.parent / name, ts, exp, seq))
+    return out
+
+
+class ReplayCamera:
+    """Replays frames from disk as a camera."""
+
+    description = "Replay camera: image folders (DAVIS layout), video files, recorded runs"
+
+    class Config(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+        path: str = Field(default=".", description="run folder, image folder or video file")
+        camera: str | None = Field(default=None,
+                                   description="camera folder inside a recorded run "
+                                               "(default: the rig's camera id)")
+        pacing: Literal["realtime", "as_fast_as_consumed"] = "as_fast_as_consumed"
+        frame_rate_hz: float | None = Field(default=None, gt=0, le=1000)
+        start_ns: int = Field(default=1_000_000_000, ge=0,
+                              description="stamp of frame 0 for sources without stamps")
+        loop: bool = False
+        check_size: bool = Field(default=True,
+                                 description="frames must match the camera model's resolution")
+
+    def __init__(self, config: Config | None = None, *, model: CameraModel,
+                 clock: Clock | None = None, camera_id: str | None = None,
+                 **_context: Any) -> None:
+        self.config = config or self.Config()
+        self.model = model
+        self.camera_id = camera_id or model.camera_id
+        self._lock = threading.Lock()
+        self._entries: list[_Entry] | None = None
+        self._video: cv2.VideoCapture | None = None
+        self._video_fps = 30.0
+        self._video_count = -1
+        self._index = 0
+        self._served = 0
+        self._wall0: float | None = None
+        self._ts0: int | None = None
+        self.kind = ""
+        self._closed = False
+        self.stats = {"frames": 0, "frame_errors": 0, "timeouts": 0, "loops": 0}
+
+    # -- lifetime --------------------------------------------------------------------------
+    def open(self) -> None:
+        with self._lock:
+            self._closed = False
+            if self._entries is not None or self._video is not None:
+                return
+            self._open_source()
+
+    def _open_source(self) -> None:
+        p = Path(self.config.path).expanduser()
+        cam = self.config.camera or self.camera_id
+        if not p.exists():
+            raise ConfigError(f"cameras.{self.camera_id}.params.path: {str(p)!r} does not "
+                              "exist: give a recorded run, an image folder or a video file")
+        if p.is_file():
+            cap = cv2.VideoCapture(str(p))
+            if not cap.isOpened():
+                raise ConfigError(f"cameras.{self.camera_id}.params.path: cannot open video "
+                                  f"{str(p)!r} (OpenCV reads mp4v .mp4 and MJPG/XVID .avi)")
+            fps = cap.get(cv2.CAP_PROP_FPS)
+            self._video_fps = fps if fps and math.isfinite(fps) and fps > 0 else 30.0
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            self._video_count = n if n > 0 else -1
+            self._video = cap
+            self.kind = "video"
+            return
+        if (p / cam / FRAMES_CSV).exists():
+            self._entries = read_frames_csv(p / cam / FRAMES_CSV)
+            self.kind = "run"
+            return
+        folder = p / "frames" if (p / "frames").is_dir() else p
+        images = list_images(folder)
+        if not images:
+            hint = f" (recorded run cameras: {sorted(d.name for d in p.iterdir() if (d / FRAMES_CSV).exists())})" \
+                if any((d / FRAMES_CSV).exists() for d in p.iterdir() if d.is_dir()) else ""
+            raise ConfigError(f"cameras.{self.camera_id}.params.path: no images in "
+                              f"{str(folder)!r} and no {cam}/{FRAMES_CSV}{hint}")
+        period = 1e9 / (self.config.frame_rate_hz or 30.0)
+        self._entries = [_Entry(q, self.config.start_ns + int(round(k * period)), 0.0, k + 1)
+                         for k, q in enumerate(images)]
+        self.kind = "folder"
+
+    def close(self) -> None:
+        with self._lock:
+            if self._video is not None:
+                self._video.release()
+            self._video = None
+            self._entries = None
+            self._index = 0
+            self._served = 0
+            self._wall0 = self._ts0 = None
+            self._closed = True
+
+    def __enter__(self) -> ReplayCamera:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __len__(self) -> int:
+        if self._entries is not None:
+            return len(self._entries)
+        return max(0, self._video_count)
+
+    # -- acquisition -----------------------------------------------------------------------
+    def grab(self, *, timeout_s: float) -> Frame:
+        if not timeout_s > 0 or not math.isfinite(timeout_s):
+            raise ValueError(f"timeout_s: must be a finite number > 0, got {timeout_s}")
+        with self._lock:
+            if self._closed:
+                raise CameraError("CLOSED", f"camera {self.camera_id!r}.grab()", None,
+                                  "the camera is closed: open() it again to replay from the start")
+            if self._entries is None and self._video is None:
+                self._open_source()
+            if self._video is not None:
+                return self._grab_video(timeout_s)
+            return self._grab_entry(timeout_s)
+
+    def _pace(self, timestamp_ns: int, timeout_s: float) -> None:
+        if self.config.pacing != "realtime":
+            return
+        now = time.monotonic()
+        if self._wall0 is None or self._ts0 is None:
+            self._wall0, self._ts0 = now, timestamp_ns
+            return
+        wait = self._wall0 + (timestamp_ns - self._ts0) / 1e9 - now
+        if wait > timeout_s:
+            time.sleep(timeout_s)
+            self.stats["timeouts"] += 1
+            raise GrabTimeout(self.camera_id, timeout_s)
+        if wait > 0:
+            time.sleep(wait)
+
+    def _check(self, img: np.ndarray | None, what: str) -> np.ndarray:
+        if img is None or img.size == 0:
+            self.stats["frame_errors"] += 1
+            raise FrameError("CORRUPT_FRAME", f"camera {self.camera_id!r}.grab()", None,
+                             f"{what}: cannot decode the image (corrupted or truncated file)")
+        if self.config.check_size and (img.shape[1], img.shape[0]) != (
+                self.model.width_px, self.model.height_px):
+            self.stats["frame_errors"] += 1
+            raise FrameError("WRONG_SIZE", f"camera {self.camera_id!r}.grab()", None,
+                             f"{what}: {img.shape[1]}x{img.shape[0]} px but the camera model "
+                             f"is {self.model.width_px}x{self.model.height_px}: fix "
+                             "resolution_px or set params.check_size: false")
+        return img
+
+    def _end(self) -> None:
+        raise EndOfStream(self.camera_id, self._served)
+
+    def _grab_entry(self, timeout_s: float) -> Frame:
+        assert self._entries is not None
+        if self._index >= len(self._entries):
+            if not self.config.loop or not self._entries:
+                self._end()
+            self._index = 0
+            self._wall0 = self._ts0 = None
+            self.stats["loops"] += 1
+        e = self._entries[self._index]
+        ts = e.timestamp_ns
+        if self.config.loop and self.stats["loops"]:
+            span = self._entries[-1].timestamp_ns - self._entries[0].timestamp_ns
+            period = 1e9 / (self.config.frame_rate_hz or 30.0)
+            ts += int(self.stats["loops"] * (span + period))
+        self._pace(ts, timeout_s)
+        self._index += 1  # a bad frame is skipped by the next grab
+        img = cv2.imread(str(e.path), cv2.IMREAD_COLOR) if e.path is not None else None
+        img = self._check(img, str(e.path))
+        self._served += 1
+        self.stats["frames"] += 1
+        seq = e.seq + (self.stats["loops"] * len(self._entries) if self.config.loop else 0)
+        return Frame(img, ts, self.camera_id, seq, exposure_s=e.exposure_s)
+
+    def _grab_video(self, timeout_s: float) -> Frame:
+        assert self._video is not None
+        fps = self.config.frame_rate_hz or self._video_fps
+        k = self._index
+        ts = self.config.start_ns + int(round(k * 1e9 / fps))
+        self._pace(ts, timeout_s)
+        ok, img = self._video.read()
+        if not ok:
+            if self._video_count < 0 or k >= self._video_count:
+                if self.config.loop and k > 0:
+                    self._video.set(cv2.CAP_PROP_POS_FRAMES, 0)
+                    ok, img = self._video.read()
+                    self.stats["loops"] += 1
+                if not ok:
+                    self._end()
+            else:
+                self._index += 1
+                self._check(None, f"{self.config.path} frame {k}")
+        self._index += 1
+        img = self._check(img, f"{self.config.path} frame {k}")
+        self._served += 1
+        self.stats["frames"] += 1
+        return Frame(np.ascontiguousarray(img), ts, self.camera_id, k + 1)
+
+    def health(self) -> dict[str, Any]:
+        return {"camera_id": self.camera_id, "source": self.kind, "served": self._served,
+                **self.stats}
+
+
+__all__ = ["ReplayCamera", "Recorder", "list_images", "read_frames_csv", "CameraError"]

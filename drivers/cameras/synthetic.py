@@ -1,0 +1,182 @@
+"""``synthetic`` camera plugin: renders :class:`SyntheticWorld` from the TRUE vehicle pose.
+
+Time convention (``SimulationConfig.camera_time_offset_s`` = ``dt``): ``grab`` stamps the frame
+with the clock's current time ``t`` (taken as mid-exposure) but renders the world and the
+vehicle pose at ``t - dt``. The camera's stamps are therefore *late* by ``dt`` with respect to
+the telemetry, like an uncompensated USB/driver latency on a real rig: a pipeline that looks up
+the pose at the frame's stamp is off by ``dt``. Frame pacing is the caller's job.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import threading
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+from eaglemission.drivers.cameras.world import GroundTruth, SyntheticWorld
+from pydantic import BaseModel, ConfigDict, Field
+
+from eaglemission.clock import Clock, MonotonicClock
+from eaglemission.config import MissionFile, SimulationConfig, TargetConfig
+from eaglemission.errors import ConfigError, GrabTimeout
+from eaglemission.geometry import CameraModel
+from eaglemission.types import XYZ, Frame, Quat
+
+log = logging.getLogger(__name__)
+
+PoseSource = Callable[[int], "tuple[XYZ, Quat] | None"]
+
+
+class SyntheticCamera:
+    """Renders the synthetic world for one camera of the rig (ground truth in
+    ``world.truth(camera_id, seq)``)."""
+
+    description = "Synthetic camera: renders the simulated world from the true vehicle pose"
+
+    class Config(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+        exposure_s: float | None = Field(
+            default=None, gt=0, le=1.0,
+            description="exposure reported in Frame.exposure_s (default: the camera model's)")
+
+    def __init__(self, config: Config | None = None, *, model: CameraModel,
+                 clock: Clock | None = None, world: SyntheticWorld | None = None,
+                 pose_source: PoseSource | None = None, camera_id: str | None = None,
+                 simulation: SimulationConfig | None = None, target: TargetConfig | None = None,
+                 **_context: Any) -> None:
+        self.config = config or self.Config()
+        self.model = model
+        self.camera_id = camera_id or model.camera_id
+        self.clock: Clock = clock or MonotonicClock()
+        if world is None:
+            if target is None:
+                raise ConfigError(
+                    f"cameras.{self.camera_id}: the synthetic camera needs a world: pass "
+                    "`world=SyntheticWorld(...)` (or `simulation` and `target`), e.g. via "
+                    "eaglemission.drivers.cameras.synthetic.make_synthetic_rig")
+            world = SyntheticWorld(simulation, target)
+        if pose_source is None:
+            raise ConfigError(
+                f"cameras.{self.camera_id}: the synthetic camera needs `pose_source`, a "
+                "callable host-time -> (position_ned_m, attitude_q) of the TRUE vehicle pose")
+        self.world = world
+        self.pose_source = pose_source
+        self.time_offset_ns = int(round(world.simulation.camera_time_offset_s * 1e9))
+        self.seq = 0
+        self._open = False
+        self._lock = threading.Lock()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._remember_loop()
+        self.stats = {"frames": 0, "no_pose": 0}
+
+    # -- lifetime --------------------------------------------------------------------------
+    def open(self) -> None:
+        self._open = True
+        self._remember_loop()
+
+    def _remember_loop(self) -> None:
+        try:
+            self._loop = asyncio.get_running_loop()
+        except RuntimeError:
+            pass
+
+    def _now_ns(self) -> int:
+        """The clock's time; from a worker thread, a loop clock (``LoopClock`` under
+        ``VirtualTimeLoop``) is read through the loop captured at construction/open."""
+        try:
+            return int(self.clock.now_ns())
+        except RuntimeError:
+            if self._loop is None:
+                raise RuntimeError(
+                    f"camera {self.camera_id!r}: the clock needs a running event loop; "
+                    "construct or open() the camera inside the loop, or use grab_at()"
+                ) from None
+            return int(round(self._loop.time() * 1e9))
+
+    def close(self) -> None:
+        self._open = False
+
+    def __enter__(self) -> SyntheticCamera:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- acquisition -----------------------------------------------------------------------
+    def grab(self, *, timeout_s: float) -> Frame:
+        """Render a frame stamped now (mid-exposure) from the pose ``camera_time_offset_s``
+        earlier. Raises :class:`GrabTimeout` when the pose source has no pose for that time."""
+        return self.grab_at(self._now_ns(), timeout_s=timeout_s)
+
+    def grab_at(self, timestamp_ns: int, *, timeout_s: float) -> Frame:
+        """Render the frame whose mid-exposure stamp is ``timestamp_ns`` (for callers that
+        pace frames themselves, e.g. from a worker thread)."""
+        if not timeout_s > 0 or not math.isfinite(timeout_s):
+            raise ValueError(f"timeout_s: must be a finite number > 0, got {timeout_s}")
+        t_ns = int(timestamp_ns)
+        render_ns = t_ns - self.time_offset_ns
+        pose = self.pose_source(render_ns)
+        if pose is None:
+            self.stats["no_pose"] += 1
+            raise GrabTimeout(self.camera_id, timeout_s)
+        position, attitude = pose
+        image, truth = self.world.render(self.model, position, attitude, render_ns)
+        with self._lock:
+            self.seq += 1
+            seq = self.seq
+        truth = replace(truth, timestamp_ns=t_ns, render_time_ns=render_ns)
+        self.world.record_truth(self.camera_id, seq, truth)
+        self.stats["frames"] += 1
+        exposure = self.config.exposure_s if self.config.exposure_s is not None \
+            else self.model.exposure_s
+        return Frame(image, t_ns, self.camera_id, seq, exposure_s=float(exposure))
+
+    def truth(self, seq: int) -> GroundTruth:
+        """Ground truth of this camera's frame ``seq`` (side channel)."""
+        return self.world.truth(self.camera_id, seq)
+
+    def health(self) -> dict[str, Any]:
+        return {"camera_id": self.camera_id, "open": self._open, **self.stats}
+
+
+def geofence_extent_m(config: MissionFile) -> float:
+    """Side of a square around home covering the geofence, the target and the distractors."""
+    fence = config.safety.geofence
+    reach = [fence.radius_m or 0.0]
+    if fence.polygon_ned_m:
+        reach += [math.hypot(n, e) for n, e in fence.polygon_ned_m]
+    sim = config.simulation or SimulationConfig()
+    reach.append(math.hypot(sim.target_north_m, sim.target_east_m))
+    reach += [math.hypot(d.north_m, d.east_m) for d in sim.distractors]
+    return 2.0 * (max(reach) + 20.0)
+
+
+def make_synthetic_rig(config: MissionFile, pose_source: PoseSource, clock: Clock, *,
+                       world: SyntheticWorld | None = None) -> Any:
+    """The world and both synthetic cameras of a mission file, as a
+    :class:`~eaglemission.drivers.cameras.rig.CameraRig` (``rig.world`` is the world).
+
+    The cameras use the NOMINAL models of ``config.cameras``; the world renders them with
+    the realism knobs of ``config.simulation`` applied.
+    """
+    from eaglemission.drivers.cameras.rig import CameraRig
+
+    if world is None:
+        world = SyntheticWorld(config.simulation, config.target,
+                               extent_m=min(1000.0, geofence_extent_m(config)))
+    cams = {}
+    for cid in ("wide", "narrow"):
+        section = getattr(config.cameras, cid)
+        params = section.params if section.type == "synthetic" else {}
+        cams[cid] = SyntheticCamera(SyntheticCamera.Config(**params),
+                                    model=section.to_model(cid), clock=clock, world=world,
+                                    pose_source=pose_source, camera_id=cid)
+    rig = CameraRig(cams["wide"], cams["narrow"])
+    rig.world = world
+    return rig
