@@ -173,31 +173,33 @@ def find_regions(
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     grow = 1.0 if cfg.mbr_pixel_edges else 0.0
     sal = np.asarray(saliency, dtype=np.float32)
-    found: list[Detection] = []
+    candidates: list[tuple[float, tuple[tuple[float, float], tuple[float, float], float]]] = []
     for cnt in contours:
         x, y, bw, bh = cv2.boundingRect(cnt)
         # boundingRect counts pixels, so bw * bh bounds every area below from above.
         if bw * bh < cfg.min_area_px:
             continue
-        (cu, cv), (w, h), angle = cv2.minAreaRect(cnt)
+        centre, (w, h), angle = cv2.minAreaRect(cnt)
         w, h = float(w) + grow, float(h) + grow
         rect_area = w * h
         if rect_area < cfg.min_area_px:
             continue
-        long_, short = (w, h) if w >= h else (h, w)
-        if not prior_accepts(rect_area, long_, short, prior):
+        if not prior_accepts(rect_area, max(w, h), min(w, h), prior):
             continue
         region = np.zeros((bh, bw), np.uint8)
         cv2.drawContours(region, [cnt], 0, 255, thickness=cv2.FILLED, offset=(-x, -y))
         region &= mask[y : y + bh, x : x + bw]
         n_px = cv2.countNonZero(region)
         mean_sal = cv2.mean(sal[y : y + bh, x : x + bw], mask=region)[0] if n_px else 0.0
-        score = float(mean_sal) * math.sqrt(max(n_px, 1))
-        corners = order_corners(cv2.boxPoints(((cu, cv), (w, h), angle)))
+        candidates.append((float(mean_sal) * math.sqrt(max(n_px, 1)), (centre, (w, h), angle)))
+    candidates.sort(key=lambda c: c[0], reverse=True)
+    found = []
+    for score, rect in candidates[: cfg.max_detections]:
+        (cu, cv), (w, h), _ = rect
+        corners = order_corners(cv2.boxPoints(rect))
         found.append(Detection(
             score=score, center_px=(float(cu), float(cv)), corners_px=corners,
-            size_px=(long_, short), angle_deg=long_side_angle_deg(corners), area_px=rect_area,
-            camera_id=camera_id,
+            size_px=(max(w, h), min(w, h)), angle_deg=long_side_angle_deg(corners),
+            area_px=w * h, camera_id=camera_id,
         ))
-    found.sort(key=lambda d: d.score, reverse=True)
-    return tuple(found[: cfg.max_detections]), t / 255.0
+    return tuple(found), t / 255.0
