@@ -150,7 +150,7 @@ def validate_params(role: str, name: str, params: Mapping[str, Any] | None, *, p
     try:
         return cls.Config.model_validate(dict(params or {}))  # type: ignore[attr-defined,no-any-return]
     except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, prefix=path)) from None
+        raise ConfigError(format_validation_error(exc, prefix=path, model=cls.Config)) from None  # type: ignore[attr-defined]
 
 
 def load(role: str, name: str, params: Mapping[str, Any] | BaseModel | None = None, **context: Any) -> Any:

@@ -1,0 +1,706 @@
+"""Deterministic kinematic multicopter: the TRUE motion of a simulated vehicle.
+
+Pure (no asyncio, no clock): time advances only through :meth:`MulticopterDynamics.step` /
+:meth:`MulticopterDynamics.advance_to`, in whole internal steps of ``1 / params.rate_hz``, so the
+trajectory depends only on the commands and the times they were issued, never on how often the
+caller advances the model. The simulated vehicle (plugin ``simulated``) and the MAVLink
+emulator both step this model.
+
+Model (NED, metres, seconds), in the spirit of PX4's multicopter position controller:
+
+* **Position loop** (on the *estimated* position, as a real autopilot does): the desired
+  velocity points at the setpoint with magnitude ``min(v_max, k_p d, sqrt(2 a_brake d))`` (a
+  braking profile, so the vehicle does not overshoot by more than the velocity loop's lag).
+* **Velocity loop**: ``a_cmd = (v_des - v) / tau_v + drag v - d_hat`` where ``d_hat`` is a
+  disturbance observer (the acceleration the thrust does not explain, low-pass filtered with
+  ``wind_observer_time_s``): it learns the wind and rejects it with that lag, without the
+  velocity overshoot an integrator would add.
+  ``a_cmd`` is limited in magnitude (acceleration limit and ``g tan(max_tilt)``).
+* **Attitude**: the thrust acceleration follows ``a_cmd`` with a first-order lag
+  (``attitude_time_constant_s``); the body's z axis is aligned with the thrust, so the
+  attitude follows the commanded acceleration: braking at ``a`` tilts the body (and a camera
+  fixed to it) by ``atan(a / g)``. Yaw follows its setpoint at a limited rate.
+* **Physics**: ``a = a_thrust + drag (wind - v)`` (air drag on the airspeed); the ground
+  (``down = 0``) stops a descent and holds a landed vehicle in place.
+* **Command latency**: a command takes effect ``command_latency_s`` after it was issued
+  (link + autopilot reaction); internal commands (autopilot's own mode logic) can be immediate.
+* **Estimate**: :class:`EstimateModel` adds a slowly drifting, bounded error (an
+  Ornstein-Uhlenbeck random walk of a few cm to dm, seeded) to the true position: that is what
+  the autopilot reports and controls on; GPS loss makes it drift away linearly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from eaglemission.types import XYZ, Quat, Setpoint
+
+GRAVITY_MPS2 = 9.80665
+SMOOTHING_TIME_S = 1.0  # low-pass of the estimate error (EKF output is smooth)
+LIFTOFF_ACCEL_MPS2 = 0.5  # upward thrust excess needed to leave the ground
+ESTIMATE_DECIMATION = 4  # the estimate error is updated every 4th internal step
+
+_Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+_NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class DynamicsParams(BaseModel):
+    """Limits and time constants of the kinematic multicopter (PX4 parameter names in
+    brackets where one exists; defaults close to PX4 v1.16's, a little slower where that keeps
+    tests short)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    rate_hz: Annotated[float, Field(ge=20, le=2000)] = 100.0
+    max_horizontal_speed_mps: _Pos = 10.0  # [MPC_XY_VEL_MAX]
+    cruise_speed_mps: _Pos = 5.0  # [MPC_XY_CRUISE] default for goto/mission/RTL legs
+    max_up_speed_mps: _Pos = 3.0  # [MPC_Z_VEL_MAX_UP]
+    max_down_speed_mps: _Pos = 1.5  # [MPC_Z_VEL_MAX_DN]
+    max_horizontal_accel_mps2: _Pos = 3.0  # [MPC_ACC_HOR]
+    max_vertical_accel_mps2: _Pos = 3.0  # [MPC_ACC_UP_MAX]
+    max_tilt_deg: Annotated[float, Field(gt=0, le=60)] = 35.0  # [MPC_TILTMAX_AIR]
+    max_yaw_rate_degps: _Pos = 60.0  # [MPC_YAWRAUTO_MAX]
+    yaw_gain_per_s: _Pos = 2.5
+    position_gain_per_s: _Pos = 1.0  # [MPC_XY_P]
+    brake_accel_fraction: Annotated[float, Field(gt=0, le=1)] = 0.6
+    velocity_time_constant_s: _Pos = 0.3
+    wind_observer_time_s: _Pos = 1.0
+    attitude_time_constant_s: _Pos = 0.08
+    drag_per_s: _NonNeg = 0.3
+    command_latency_s: _NonNeg = 0.03
+    takeoff_speed_mps: _Pos = 1.5  # [MPC_TKO_SPEED]
+    land_speed_mps: _Pos = 0.7  # [MPC_LAND_SPEED]
+    estimate_horizontal_std_m: _NonNeg = 0.08
+    estimate_vertical_std_m: _NonNeg = 0.04
+    estimate_correlation_time_s: _Pos = 30.0
+    estimate_max_error_m: _NonNeg = 0.3
+    gps_loss_drift_mps: _NonNeg = 0.3
+    wind_gust_std_mps: _NonNeg = 0.0
+    wind_gust_time_s: _Pos = 2.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure helpers
+# ---------------------------------------------------------------------------------------------
+def wrap_deg(angle_deg: float) -> float:
+    """Wrap to [-180, 180) (same as :func:`eaglemission.geometry.wrap_deg`, kept local so the
+    model has no OpenCV import)."""
+    return (angle_deg + 180.0) % 360.0 - 180.0
+
+
+def tilt_from_acceleration_deg(horizontal_accel_mps2: float) -> float:
+    """Tilt of the thrust axis from the vertical needed to accelerate horizontally at ``a``
+    in hover: ``atan(a / g)``."""
+    return math.degrees(math.atan2(abs(horizontal_accel_mps2), GRAVITY_MPS2))
+
+
+def attitude_from_acceleration(accel_ned_mps2: XYZ, yaw_deg: float) -> Quat:
+    """Body FRD -> NED quaternion ``(w, x, y, z)`` of a multicopter whose thrust produces the
+    (gravity-compensated) acceleration ``accel_ned_mps2`` with heading ``yaw_deg``.
+
+    The body z axis (down) is opposite to the specific thrust ``a - g``; the body x axis is the
+    heading direction projected onto the plane normal to z. Braking while flying north
+    (``a_n < 0``) pitches the nose up.
+    """
+    tn, te, td = accel_ned_mps2[0], accel_ned_mps2[1], accel_ned_mps2[2] - GRAVITY_MPS2
+    norm = math.sqrt(tn * tn + te * te + td * td)
+    if norm < 1e-6:  # free fall / motors off: report level
+        tn, te, td, norm = 0.0, 0.0, -1.0, 1.0
+    zx, zy, zz = -tn / norm, -te / norm, -td / norm
+    yaw = math.radians(yaw_deg)
+    cx, cy = math.cos(yaw), math.sin(yaw)
+    # y_b = z_b x x_c, with x_c = (cos yaw, sin yaw, 0)
+    yx, yy, yz = -zz * cy, zz * cx, zx * cy - zy * cx
+    yn = math.sqrt(yx * yx + yy * yy + yz * yz)
+    yx, yy, yz = yx / yn, yy / yn, yz / yn
+    # x_b = y_b x z_b
+    xx, xy, xz = yy * zz - yz * zy, yz * zx - yx * zz, yx * zy - yy * zx
+    # R columns are x_b, y_b, z_b (body -> NED)
+    r00, r01, r02 = xx, yx, zx
+    r10, r11, r12 = xy, yy, zy
+    r20, r21, r22 = xz, yz, zz
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
+    elif r00 > r11 and r00 > r22:
+        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
+    elif r11 > r22:
+        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
+    else:
+        s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
+        n = -n
+    return (w / n, x / n, y / n, z / n)
+
+
+def stopping_point(position: XYZ, velocity: XYZ, accel_mps2: float) -> XYZ:
+    """Where a vehicle braking at ``accel_mps2`` comes to rest: ``p + v |v| / (2 a)``."""
+    out = []
+    for p, v in zip(position, velocity):
+        out.append(p + v * abs(v) / (2.0 * accel_mps2))
+    return (out[0], out[1], out[2])
+
+
+def braking_distance_m(speed_mps: float, accel_mps2: float) -> float:
+    """``v^2 / (2 a)``."""
+    return speed_mps * speed_mps / (2.0 * accel_mps2)
+
+
+# ---------------------------------------------------------------------------------------------
+# Estimate
+# ---------------------------------------------------------------------------------------------
+class _Normals:
+    """Seeded standard normals drawn in blocks (a numpy call per sample would dominate)."""
+
+    def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
+        self._rng = rng
+        self._block = block
+        self._buf: list[float] = []
+        self._i = 0
+
+    def next(self) -> float:
+        if self._i >= len(self._buf):
+            self._buf = self._rng.standard_normal(self._block).tolist()
+            self._i = 0
+        v = self._buf[self._i]
+        self._i += 1
+        return v
+
+
+class EstimateModel:
+    """The autopilot's position estimate error: ``estimate = truth + error``.
+
+    With GPS the error is an Ornstein-Uhlenbeck process per axis (stationary std
+    ``horizontal_std_m`` / ``vertical_std_m``, correlation time ``correlation_time_s``),
+    clipped to ``max_error_m`` (EKF innovation gating); it starts at a random draw (home and
+    the EKF origin differ by decimetres on real PX4). Without GPS it drifts linearly at
+    ``gps_loss_drift_mps`` in a seeded random direction; when GPS returns it resets onto the
+    underlying process (an EKF position reset).
+    """
+
+    def __init__(
+        self,
+        *,
+        seed: int,
+        horizontal_std_m: float = 0.08,
+        vertical_std_m: float = 0.04,
+        correlation_time_s: float = 30.0,
+        max_error_m: float = 0.3,
+        gps_loss_drift_mps: float = 0.3,
+    ) -> None:
+        if correlation_time_s <= 0:
+            raise ValueError(f"correlation_time_s: must be > 0, got {correlation_time_s}")
+        self.horizontal_std_m = float(horizontal_std_m)
+        self.vertical_std_m = float(vertical_std_m)
+        self.correlation_time_s = float(correlation_time_s)
+        self.max_error_m = float(max_error_m)
+        self.gps_loss_drift_mps = float(gps_loss_drift_mps)
+        self._normals = _Normals(np.random.default_rng(np.random.SeedSequence([int(seed), 0xE5])))
+        stds = (self.horizontal_std_m, self.horizontal_std_m, self.vertical_std_m)
+        self._ou = [self._clip(s * self._normals.next()) for s in stds]
+        self._smooth = list(self._ou)  # low-passed: an EKF estimate does not jitter
+        self._drift = [0.0, 0.0, 0.0]
+        self._drift_v = (0.0, 0.0, 0.0)
+        self.gps_ok = True
+        self._cached_dt = -1.0
+        self._a = 1.0
+        self._b = 0.0
+
+    @classmethod
+    def from_params(cls, params: DynamicsParams, *, seed: int) -> EstimateModel:
+        return cls(
+            seed=seed,
+            horizontal_std_m=params.estimate_horizontal_std_m,
+            vertical_std_m=params.estimate_vertical_std_m,
+            correlation_time_s=params.estimate_correlation_time_s,
+            max_error_m=params.estimate_max_error_m,
+            gps_loss_drift_mps=params.gps_loss_drift_mps,
+        )
+
+    def _clip(self, v: float) -> float:
+        m = self.max_error_m
+        return -m if v < -m else (m if v > m else v)
+
+    @property
+    def error_ned_m(self) -> XYZ:
+        o, d = self._smooth, self._drift
+        return (o[0] + d[0], o[1] + d[1], o[2] + d[2])
+
+    def set_gps(self, ok: bool) -> None:
+        """GPS lost (``False``): start drifting; regained: reset onto the GPS-aided estimate."""
+        if ok == self.gps_ok:
+            return
+        self.gps_ok = ok
+        if not ok:
+            ang = math.pi * (1.0 + self._normals.next() * 0.5)
+            v = self.gps_loss_drift_mps
+            self._drift_v = (v * math.cos(ang), v * math.sin(ang), 0.1 * v * self._normals.next())
+        else:
+            self._drift = [0.0, 0.0, 0.0]
+            self._drift_v = (0.0, 0.0, 0.0)
+            self._smooth = list(self._ou)
+
+    def step(self, dt_s: float) -> None:
+        if dt_s != self._cached_dt:
+            self._cached_dt = dt_s
+            self._a = math.exp(-dt_s / self.correlation_time_s)
+            self._b = math.sqrt(max(0.0, 1.0 - self._a * self._a))
+        a, b = self._a, self._b
+        o = self._ou
+        nx = self._normals.next
+        o[0] = self._clip(a * o[0] + b * self.horizontal_std_m * nx())
+        o[1] = self._clip(a * o[1] + b * self.horizontal_std_m * nx())
+        o[2] = self._clip(a * o[2] + b * self.vertical_std_m * nx())
+        f = self._smooth
+        k = min(1.0, dt_s / SMOOTHING_TIME_S)
+        f[0] += (o[0] - f[0]) * k
+        f[1] += (o[1] - f[1]) * k
+        f[2] += (o[2] - f[2]) * k
+        if not self.gps_ok:
+            d, v = self._drift, self._drift_v
+            d[0] += v[0] * dt_s
+            d[1] += v[1] * dt_s
+            d[2] += v[2] * dt_s
+
+
+# ---------------------------------------------------------------------------------------------
+# State and commands
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class KinematicState:
+    """A snapshot of the model: truth, or the estimate (position + estimate error)."""
+
+    time_ns: int
+    position_ned_m: XYZ
+    velocity_ned_mps: XYZ
+    acceleration_ned_mps2: XYZ  # thrust acceleration, gravity compensated (what tilts the body)
+    yaw_deg: float
+    yaw_rate_degps: float
+    on_ground: bool
+    motors_on: bool
+
+    @property
+    def attitude_q(self) -> Quat:
+        if self.on_ground and not self.motors_on:
+            return attitude_from_acceleration((0.0, 0.0, 0.0), self.yaw_deg)
+        return attitude_from_acceleration(self.acceleration_ned_mps2, self.yaw_deg)
+
+    @property
+    def tilt_deg(self) -> float:
+        a = self.acceleration_ned_mps2
+        return math.degrees(math.atan2(math.hypot(a[0], a[1]), GRAVITY_MPS2 - a[2]))
+
+    @property
+    def speed_mps(self) -> float:
+        v = self.velocity_ned_mps
+        return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+ControlMode = Literal["idle", "position", "velocity", "land"]
+
+
+@dataclass(frozen=True, slots=True)
+class _Command:
+    kind: Literal["position", "velocity", "hold", "land"]
+    target: XYZ = (0.0, 0.0, 0.0)
+    yaw_deg: float | None = None
+    max_speed_mps: float | None = None
+    max_up_speed_mps: float | None = None
+    max_down_speed_mps: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class _Constants:
+    dt: float
+    kp: float
+    two_a_brake_h: float
+    two_a_brake_v: float
+    v_h_max: float
+    v_up_max: float
+    v_down_max: float
+    v_land: float
+    inv_tau_v: float
+    drag: float
+    a_v_max: float
+    k_yaw: float
+    yaw_rate_max: float
+    beta_obs: float
+    gust_a: float
+    gust_b: float
+
+
+def _constants(p: DynamicsParams, dt: float, a_h_max: float) -> _Constants:
+    gust_a = math.exp(-dt / p.wind_gust_time_s)
+    return _Constants(
+        dt=dt, kp=p.position_gain_per_s,
+        two_a_brake_h=2.0 * a_h_max * p.brake_accel_fraction,
+        two_a_brake_v=2.0 * p.max_vertical_accel_mps2 * p.brake_accel_fraction,
+        v_h_max=p.max_horizontal_speed_mps, v_up_max=p.max_up_speed_mps,
+        v_down_max=p.max_down_speed_mps, v_land=min(p.land_speed_mps, p.max_down_speed_mps),
+        inv_tau_v=1.0 / p.velocity_time_constant_s, drag=p.drag_per_s,
+        a_v_max=p.max_vertical_accel_mps2, k_yaw=p.yaw_gain_per_s,
+        yaw_rate_max=p.max_yaw_rate_degps, beta_obs=dt / p.wind_observer_time_s,
+        gust_a=gust_a, gust_b=math.sqrt(1.0 - gust_a * gust_a) * p.wind_gust_std_mps)
+
+
+# ---------------------------------------------------------------------------------------------
+# The model
+# ---------------------------------------------------------------------------------------------
+class MulticopterDynamics:
+    """Kinematic multicopter with a PX4-like cascaded controller (see the module docstring).
+
+    Parameters
+    ----------
+    params : DynamicsParams or None
+        Limits and time constants (defaults when None).
+    seed : int
+        Seeds the estimate drift and the gusts; same seed + same commands = same trajectory.
+    wind_ne_mps : (north, east) mean wind in m/s (``SimulationConfig.wind_ne_mps``).
+    start_time_ns : model time of the initial state (the vehicle's clock at creation).
+    estimate : EstimateModel or None
+        The estimate error model; built from ``params`` when None.
+
+    Examples
+    --------
+    >>> dyn = MulticopterDynamics(seed=1)
+    >>> dyn.set_motors(True)
+    >>> dyn.command_position(Setpoint(0.0, 0.0, -5.0, 0.0), immediate=True)
+    >>> dyn.step(10.0)
+    >>> round(-dyn.truth().position_ned_m[2])
+    5
+    """
+
+    def __init__(
+        self,
+        params: DynamicsParams | None = None,
+        *,
+        seed: int = 0,
+        wind_ne_mps: tuple[float, float] = (0.0, 0.0),
+        start_time_ns: int = 0,
+        estimate: EstimateModel | None = None,
+    ) -> None:
+        self.params = p = params or DynamicsParams()
+        self.step_ns = int(round(1e9 / p.rate_hz))
+        self.dt_s = self.step_ns * 1e-9
+        self.time_ns = int(start_time_ns)
+        self._target_ns = self.time_ns  # time asked for (may lie between steps)
+        self.estimate_model = estimate or EstimateModel.from_params(p, seed=seed)
+        self.wind_ne_mps = (float(wind_ne_mps[0]), float(wind_ne_mps[1]))
+        self._gust_normals = _Normals(np.random.default_rng(np.random.SeedSequence([int(seed), 0x61])))
+        self._gust = [0.0, 0.0]
+        # true state
+        self.pn = self.pe = self.pd = 0.0
+        self.vn = self.ve = self.vd = 0.0
+        self.an = self.ae = self.ad = 0.0  # thrust acceleration (gravity compensated)
+        self.yaw_deg = 0.0
+        self.yaw_rate_degps = 0.0
+        self.motors_on = False
+        self.on_ground = True
+        # controller
+        self.mode: ControlMode = "idle"
+        self._sp = (0.0, 0.0, 0.0)
+        self._vel_cmd = (0.0, 0.0, 0.0)
+        self._yaw_sp = 0.0
+        self._max_speed = p.cruise_speed_mps
+        self._max_up = p.max_up_speed_mps
+        self._max_down = p.max_down_speed_mps
+        self._dn, self._de = 0.0, 0.0  # disturbance (wind) estimate, m/s^2
+        self._pending: deque[tuple[int, _Command]] = deque()
+        # cached constants
+        self._alpha_att = 1.0 - math.exp(-self.dt_s / p.attitude_time_constant_s)
+        self._a_h_max = min(p.max_horizontal_accel_mps2,
+                            GRAVITY_MPS2 * math.tan(math.radians(p.max_tilt_deg)))
+        self._latency_ns = int(round(p.command_latency_s * 1e9))
+        self._k = _constants(p, self.dt_s, self._a_h_max)
+        self._est_count = 0
+
+    # -- state -----------------------------------------------------------------------------------
+    def reset(self, position_ned_m: XYZ = (0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> None:
+        """Put the vehicle at rest at a position (on the ground when ``down >= 0``)."""
+        self.pn, self.pe, self.pd = (float(v) for v in position_ned_m)
+        self.pd = min(self.pd, 0.0)
+        self.vn = self.ve = self.vd = 0.0
+        self.an = self.ae = self.ad = 0.0
+        self.yaw_deg = self._yaw_sp = wrap_deg(float(yaw_deg))
+        self.on_ground = self.pd >= 0.0
+        self._sp = (self.pn, self.pe, self.pd)
+        self._dn = self._de = 0.0
+        self._pending.clear()
+
+    def truth(self) -> KinematicState:
+        return KinematicState(self.time_ns, (self.pn, self.pe, self.pd), (self.vn, self.ve, self.vd),
+                              (self.an, self.ae, self.ad), self.yaw_deg, self.yaw_rate_degps,
+                              self.on_ground, self.motors_on)
+
+    def estimate(self) -> KinematicState:
+        """What the autopilot believes: true position + estimate error (velocity and attitude
+        are reported as true: their errors are small next to the position drift)."""
+        en, ee, ed = self.estimate_model.error_ned_m
+        return KinematicState(self.time_ns, (self.pn + en, self.pe + ee, self.pd + ed),
+                              (self.vn, self.ve, self.vd), (self.an, self.ae, self.ad),
+                              self.yaw_deg, self.yaw_rate_degps, self.on_ground, self.motors_on)
+
+    def estimated_position(self) -> XYZ:
+        en, ee, ed = self.estimate_model.error_ned_m
+        return (self.pn + en, self.pe + ee, self.pd + ed)
+
+    @property
+    def setpoint_ned_m(self) -> XYZ:
+        """The position the controller currently steers to (estimate frame)."""
+        return self._sp
+
+    @property
+    def yaw_setpoint_deg(self) -> float:
+        return self._yaw_sp
+
+    # -- commands --------------------------------------------------------------------------------
+    def _issue(self, cmd: _Command, immediate: bool) -> None:
+        if immediate:
+            self._apply(cmd)
+        else:
+            self._pending.append((self._target_ns + self._latency_ns, cmd))
+
+    def command_position(
+        self,
+        setpoint: Setpoint,
+        *,
+        max_speed_mps: float | None = None,
+        max_up_speed_mps: float | None = None,
+        max_down_speed_mps: float | None = None,
+        immediate: bool = False,
+    ) -> None:
+        """Fly to a NED position (estimate frame) and yaw. Speeds default to the cruise speed
+        and the vertical limits; they are always capped by the params' limits."""
+        self._issue(_Command("position", setpoint.position_ned_m, setpoint.yaw_deg, max_speed_mps,
+                             max_up_speed_mps, max_down_speed_mps), immediate)
+
+    def command_velocity(self, velocity_ned_mps: XYZ, yaw_deg: float | None = None, *,
+                         immediate: bool = False) -> None:
+        """Track a NED velocity (limited by the params) and, if given, a yaw."""
+        self._issue(_Command("velocity", tuple(float(v) for v in velocity_ned_mps), yaw_deg),  # type: ignore[arg-type]
+                    immediate)
+
+    def command_hold(self, *, immediate: bool = False) -> None:
+        """Brake and hold the stopping point (PX4 Hold/Loiter)."""
+        self._issue(_Command("hold"), immediate)
+
+    def command_land(self, *, immediate: bool = False) -> None:
+        """Hold the horizontal stopping point and descend at ``land_speed_mps``."""
+        self._issue(_Command("land"), immediate)
+
+    def set_motors(self, on: bool) -> None:
+        """Arm (motors spinning, controller active) or disarm (motors off: idle on the ground,
+        free fall in the air). Immediate."""
+        self.motors_on = bool(on)
+        if on and self.mode == "idle":
+            e = self.estimated_position()
+            self._sp = e
+            self._yaw_sp = self.yaw_deg
+            self.mode = "position"
+        if not on:
+            self.mode = "idle"
+            self._pending.clear()
+
+    def clear_pending(self) -> None:
+        """Drop commands still in flight (e.g. a link that went down)."""
+        self._pending.clear()
+
+    def _apply(self, cmd: _Command) -> None:
+        p = self.params
+        if not self.motors_on:
+            return
+        if cmd.kind == "position":
+            self.mode = "position"
+            self._sp = cmd.target
+            if cmd.yaw_deg is not None:
+                self._yaw_sp = wrap_deg(cmd.yaw_deg)
+            self._max_speed = min(cmd.max_speed_mps or p.cruise_speed_mps, p.max_horizontal_speed_mps)
+            self._max_up = min(cmd.max_up_speed_mps or p.max_up_speed_mps, p.max_up_speed_mps)
+            self._max_down = min(cmd.max_down_speed_mps or p.max_down_speed_mps, p.max_down_speed_mps)
+        elif cmd.kind == "velocity":
+            self.mode = "velocity"
+            self._vel_cmd = cmd.target
+            if cmd.yaw_deg is not None:
+                self._yaw_sp = wrap_deg(cmd.yaw_deg)
+        else:
+            a = self._a_h_max * p.brake_accel_fraction
+            e = self.estimated_position()
+            sn, se, _ = stopping_point(e, (self.vn, self.ve, self.vd), a)
+            av = p.max_vertical_accel_mps2 * p.brake_accel_fraction
+            sd = e[2] + self.vd * abs(self.vd) / (2.0 * av)
+            self._sp = (sn, se, min(sd, 0.0) if cmd.kind == "hold" else sd)
+            self._yaw_sp = self.yaw_deg
+            self._max_speed = p.cruise_speed_mps
+            self._max_up = p.max_up_speed_mps
+            self._max_down = p.max_down_speed_mps
+            self.mode = "position" if cmd.kind == "hold" else "land"
+
+    # -- integration -----------------------------------------------------------------------------
+    def step(self, dt_s: float, on_step: Callable[[MulticopterDynamics], None] | None = None) -> None:
+        """Advance by ``dt_s`` seconds (whole internal steps; a remainder carries over)."""
+        if dt_s < 0:
+            raise ValueError(f"dt_s: must be >= 0, got {dt_s}")
+        self.advance_to(self._target_ns + int(round(dt_s * 1e9)), on_step)
+
+    def advance_to(self, time_ns: int, on_step: Callable[[MulticopterDynamics], None] | None = None) -> None:
+        """Integrate up to ``time_ns`` (the model's time becomes the last whole step <= it).
+        ``on_step(self)`` runs after every internal step (mode logic, logging); it may issue
+        commands."""
+        if time_ns <= self._target_ns:
+            return
+        self._target_ns = time_ns
+        step_ns = self.step_ns
+        while self.time_ns + step_ns <= time_ns:
+            self._step_once()
+            if on_step is not None:
+                on_step(self)
+
+    def _step_once(self) -> None:
+        c = self._k  # constants (see _constants)
+        dt = c.dt
+        self.time_ns += self.step_ns
+        pend = self._pending
+        while pend and pend[0][0] <= self.time_ns:
+            self._apply(pend.popleft()[1])
+        em = self.estimate_model
+        self._est_count += 1
+        if self._est_count >= ESTIMATE_DECIMATION:  # a slow process: 20-50 Hz is plenty
+            self._est_count = 0
+            em.step(dt * ESTIMATE_DECIMATION)
+        # wind (mean + optional OU gusts)
+        wn, we = self.wind_ne_mps
+        if c.gust_b > 0.0:
+            g = self._gust
+            nx = self._gust_normals.next
+            g[0] = c.gust_a * g[0] + c.gust_b * nx()
+            g[1] = c.gust_a * g[1] + c.gust_b * nx()
+            wn += g[0]
+            we += g[1]
+
+        if not self.motors_on:
+            self._integrate_unpowered(dt)
+            return
+
+        # -- position loop -> desired velocity (estimate frame) --------------------------------
+        err = em.error_ned_m
+        mode = self.mode
+        if mode == "velocity":
+            vn_d, ve_d, vd_d = self._vel_cmd
+            h = math.hypot(vn_d, ve_d)
+            vmax = c.v_h_max
+            if h > vmax:
+                vn_d, ve_d = vn_d * vmax / h, ve_d * vmax / h
+            vd_d = max(-c.v_up_max, min(c.v_down_max, vd_d))
+        else:
+            kp = c.kp
+            sp = self._sp
+            en = sp[0] - (self.pn + err[0])
+            ee = sp[1] - (self.pe + err[1])
+            dist = math.hypot(en, ee)
+            if dist > 1e-9:
+                spd = min(self._max_speed, kp * dist, math.sqrt(c.two_a_brake_h * dist))
+                vn_d, ve_d = en / dist * spd, ee / dist * spd
+            else:
+                vn_d = ve_d = 0.0
+            if mode == "land":
+                vd_d = c.v_land
+            else:
+                ed = sp[2] - (self.pd + err[2])
+                dz = abs(ed)
+                spd = min(kp * dz, math.sqrt(c.two_a_brake_v * dz))
+                vd_d = min(spd, self._max_down) if ed > 0 else -min(spd, self._max_up)
+
+        # -- velocity loop -> thrust acceleration ----------------------------------------------
+        inv_tau = c.inv_tau_v
+        drag = c.drag
+        vn, ve, vd = self.vn, self.ve, self.vd
+        cn = (vn_d - vn) * inv_tau + drag * vn - self._dn
+        ce = (ve_d - ve) * inv_tau + drag * ve - self._de
+        cd = (vd_d - vd) * inv_tau + drag * vd
+        h = math.hypot(cn, ce)
+        a_h_max = self._a_h_max
+        if h > a_h_max:
+            cn, ce = cn * a_h_max / h, ce * a_h_max / h
+        av_max = c.a_v_max
+        cd = -av_max if cd < -av_max else (av_max if cd > av_max else cd)
+        # attitude lag: the thrust follows the command
+        al = self._alpha_att
+        an = self.an + (cn - self.an) * al
+        ae = self.ae + (ce - self.ae) * al
+        ad = self.ad + (cd - self.ad) * al
+        self.an, self.ae, self.ad = an, ae, ad
+
+        # yaw
+        on_ground = self.on_ground
+        if on_ground:
+            rate = 0.0
+        else:
+            yerr = (self._yaw_sp - self.yaw_deg + 180.0) % 360.0 - 180.0
+            rate = c.k_yaw * yerr
+            rate = -c.yaw_rate_max if rate < -c.yaw_rate_max else (
+                c.yaw_rate_max if rate > c.yaw_rate_max else rate)
+            self.yaw_deg = (self.yaw_deg + rate * dt + 180.0) % 360.0 - 180.0
+        self.yaw_rate_degps = rate
+
+        # -- physics ---------------------------------------------------------------------------
+        if on_ground and ad >= -LIFTOFF_ACCEL_MPS2:
+            # thrust at or below hover (+ a liftoff threshold, so that centimetres of estimate
+            # drift do not lift a landed vehicle): it sits on the ground, level
+            self.vn = self.ve = self.vd = 0.0
+            self.an = self.ae = 0.0
+            self._dn = self._de = 0.0
+            return
+        a_n = an + drag * (wn - vn)
+        a_e = ae + drag * (we - ve)
+        a_d = ad - drag * vd
+        # disturbance observer: what the thrust and the known drag do not explain
+        beta = c.beta_obs
+        self._dn += (a_n - an + drag * vn - self._dn) * beta
+        self._de += (a_e - ae + drag * ve - self._de) * beta
+        vn += a_n * dt
+        ve += a_e * dt
+        vd += a_d * dt
+        self.vn, self.ve, self.vd = vn, ve, vd
+        self.pn += vn * dt
+        self.pe += ve * dt
+        self.pd += vd * dt
+        self._ground_contact()
+
+    def _integrate_unpowered(self, dt: float) -> None:
+        self.an = self.ae = 0.0
+        self.ad = GRAVITY_MPS2  # no thrust: the "thrust acceleration" is +g (free fall)
+        self.yaw_rate_degps = 0.0
+        if self.on_ground:
+            self.vn = self.ve = self.vd = 0.0
+            self.ad = 0.0
+            return
+        drag = self.params.drag_per_s
+        self.vn += -drag * self.vn * dt
+        self.ve += -drag * self.ve * dt
+        self.vd += (GRAVITY_MPS2 - drag * self.vd) * dt
+        self.pn += self.vn * dt
+        self.pe += self.ve * dt
+        self.pd += self.vd * dt
+        self._ground_contact()
+
+    def _ground_contact(self) -> None:
+        if self.pd >= 0.0:
+            self.pd = 0.0
+            if self.vd > 0.0:
+                self.vd = 0.0
+            self.on_ground = True
+            self.vn = self.ve = 0.0
+        else:
+            self.on_ground = False
