@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import bisect
+import math
 import threading
 from collections import deque
 from dataclasses import replace
@@ -13,6 +14,28 @@ from eaglemission.types import VehicleState
 
 def _lerp3(a: tuple[float, float, float], b: tuple[float, float, float], s: float) -> tuple[float, float, float]:
     return (a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2]))
+
+
+def rotate_by_body_rates(
+    attitude_q: tuple[float, float, float, float], rates_frd_radps: tuple[float, float, float],
+    dt_s: float,
+) -> tuple[float, float, float, float]:
+    """Attitude after ``dt_s`` at constant body rates (FRD, rad/s): ``q * exp(w dt / 2)``.
+    Unchanged when the rates are zero (unknown)."""
+    wx, wy, wz = (float(r) * dt_s for r in rates_frd_radps)
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if angle < 1e-15:
+        return attitude_q
+    h = angle / 2.0
+    k = math.sin(h) / angle
+    dw, dx, dy, dz = math.cos(h), wx * k, wy * k, wz * k
+    w, x, y, z = attitude_q
+    q = (w * dw - x * dx - y * dy - z * dz,
+         w * dx + x * dw + y * dz - z * dy,
+         w * dy - x * dz + y * dw + z * dx,
+         w * dz + x * dy - y * dx + z * dw)
+    n = math.sqrt(sum(c * c for c in q))
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 def interpolate_states(a: VehicleState, b: VehicleState, timestamp_ns: int) -> VehicleState:
@@ -34,7 +57,8 @@ class TelemetryHistory:
     """Thread-safe ring buffer of :class:`VehicleState`, ordered by ``timestamp_ns``.
 
     ``state_at(t)`` interpolates between the bracketing samples. Beyond the newest sample it
-    extrapolates position with the velocity for at most ``max_extrapolation_s``; outside the
+    extrapolates position with the velocity and attitude with the body rates (when reported)
+    for at most ``max_extrapolation_s``; outside the
     buffer otherwise it returns None (the caller must not guess a pose).
     """
 
@@ -84,6 +108,8 @@ class TelemetryHistory:
             v = last.velocity_ned_mps
             p = last.position_ned_m
             return replace(last, timestamp_ns=timestamp_ns,
-                           position_ned_m=(p[0] + v[0] * dt, p[1] + v[1] * dt, p[2] + v[2] * dt))
+                           position_ned_m=(p[0] + v[0] * dt, p[1] + v[1] * dt, p[2] + v[2] * dt),
+                           attitude_q=rotate_by_body_rates(last.attitude_q,
+                                                           last.angular_velocity_frd_radps, dt))
         i = bisect.bisect_right(times, timestamp_ns)
         return interpolate_states(states[i - 1], states[i], timestamp_ns)

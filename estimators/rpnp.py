@@ -48,37 +48,49 @@ _IMAG_TOL = 1e-3  # |imag| / max|real| above which a root is not real (as in the
 def _frame_from_axis(x: NDArray[np.float64]) -> Mat3:
     """A right-handed frame whose first column is the unit vector ``x``; the auxiliary axis is
     chosen by comparing the components of ``x`` (as the reference implementation does)."""
-    if abs(x[1]) < abs(x[2]):
-        z = np.cross(x, (0.0, 1.0, 0.0))
-        z /= np.linalg.norm(z)
-        y = np.cross(z, x)
+    x0, x1, x2 = float(x[0]), float(x[1]), float(x[2])
+    if abs(x1) < abs(x2):
+        # z = x cross (0, 1, 0), y = z cross x
+        z0, z1, z2 = -x2, 0.0, x0
+        nz = math.sqrt(z0 * z0 + z2 * z2)
+        z0, z2 = z0 / nz, z2 / nz
+        y0, y1, y2 = z1 * x2 - z2 * x1, z2 * x0 - z0 * x2, z0 * x1 - z1 * x0
     else:
-        y = np.cross((0.0, 0.0, 1.0), x)
-        y /= np.linalg.norm(y)
-        z = np.cross(x, y)
-    y /= np.linalg.norm(y)
-    z /= np.linalg.norm(z)
-    return np.column_stack((x, y, z))
+        # y = (0, 0, 1) cross x, z = x cross y
+        y0, y1, y2 = -x1, x0, 0.0
+        ny = math.sqrt(y0 * y0 + y1 * y1)
+        y0, y1 = y0 / ny, y1 / ny
+        z0, z1, z2 = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
+    ny = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    nz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
+    return np.array([[x0, y0 / ny, z0 / nz], [x1, y1 / ny, z1 / nz], [x2, y2 / ny, z2 / nz]])
 
 
 def _umeyama(obj: NDArray[np.float64], cam: NDArray[np.float64]) -> tuple[Mat3, Vec3]:
     """Scaled Procrustes: R, t with ``cam ~ s R obj + t`` fitted, returned as (R, t) where
     ``t = mean(cam) - s R mean(obj)`` (the reference ``calcampose``)."""
-    mx = obj.mean(axis=0)
-    my = cam.mean(axis=0)
+    n = obj.shape[0]
+    mx = obj.sum(axis=0) / n
+    my = cam.sum(axis=0) / n
     X = obj - mx
     Y = cam - my
-    n = obj.shape[0]
-    sigma_x2 = float((X * X).sum()) / n
-    sxy = (Y.T @ X) / n
-    U, d, Vt = np.linalg.svd(sxy)
-    S = np.ones(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2] = -1.0
-    R = (U * S) @ Vt
-    scale = float((d * S).sum()) / sigma_x2 if sigma_x2 > 0 else 1.0
+    sigma_x2 = float(np.einsum("ij,ij->", X, X)) / n
+    U, d, Vt = np.linalg.svd((Y.T @ X) / n)
+    R = U @ Vt
+    d2 = float(d[2])
+    if _det3(R) < 0:
+        U[:, 2] = -U[:, 2]
+        R = U @ Vt
+        d2 = -d2
+    scale = (float(d[0]) + float(d[1]) + d2) / sigma_x2 if sigma_x2 > 0 else 1.0
     t = my - scale * (R @ mx)
     return R, t
+
+
+def _det3(m: NDArray[np.float64]) -> float:
+    return float(m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+                 - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+                 + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
 
 
 def reprojection_errors(
@@ -128,13 +140,21 @@ def _choose_pair_random(uv: NDArray[np.float64], rng: np.random.Generator) -> tu
     return int(ij[k, 0]), int(ij[k, 1])
 
 
-def _degeneracy(points: NDArray[np.float64], rank_tol: float) -> int:
-    """Numerical rank (0..dim) of a point cloud's spread."""
-    c = points - points.mean(axis=0)
-    s = np.linalg.svd(c, compute_uv=False)
-    if s.size == 0 or s[0] <= 0:
+def _spread_rank(points: NDArray[np.float64], tol: float) -> int:
+    """Numerical rank (0..dim) of a 2-D or 3-D point cloud's spread, from the invariants of its
+    scatter matrix (no LAPACK call): rank >= 1 if the trace is positive, >= 2 if the sum of the
+    2x2 principal minors (l1 l2 + l1 l3 + l2 l3) is not negligible against trace^2."""
+    c = points - points.sum(axis=0) / points.shape[0]
+    S = c.T @ c
+    tr = float(np.trace(S))
+    if not tr > 0:
         return 0
-    return int((s > rank_tol * s[0]).sum())
+    if S.shape[0] == 2:
+        m2 = float(S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0])
+    else:
+        m2 = float(S[0, 0] * S[1, 1] - S[0, 1] ** 2 + S[0, 0] * S[2, 2] - S[0, 2] ** 2
+                   + S[1, 1] * S[2, 2] - S[1, 2] ** 2)
+    return 1 if m2 <= tol * tr * tr else 2
 
 
 # ---------------------------------------------------------------------------------------------
@@ -192,9 +212,13 @@ def _local_minima(poly7: NDArray[np.float64]) -> NDArray[np.float64]:
     p = poly7[lead[0]:]
     if p.size < 2:
         return np.empty(0)
-    roots = np.roots(p)
-    if roots.size == 0:
-        return np.empty(0)
+    if p.size == 2:
+        roots = np.array([-p[1] / p[0]], dtype=np.complex128)
+    else:
+        # np.roots without its input checks: eigenvalues of the companion matrix.
+        comp = np.diag(np.ones(p.size - 2), -1)
+        comp[0, :] = -p[1:] / p[0]
+        roots = np.linalg.eigvals(comp)
     maxreal = float(np.abs(roots.real).max())
     if maxreal > 0:
         roots = roots[np.abs(roots.imag) / maxreal <= _IMAG_TOL]
@@ -305,6 +329,7 @@ def rpnp(
     rng: np.random.Generator | int | None = None,
     refine: bool = False,
     return_all: bool = False,
+    backend: Literal["numba", "numpy"] = "numba",
 ) -> PoseEstimate | EstimationFailed:
     """Pose of an object from n >= 4 point correspondences, RPnP of [1].
 
@@ -325,6 +350,9 @@ def rpnp(
     return_all : bool
         Put every candidate (one per local minimum of the cost), best first, in
         ``PoseEstimate.candidates``.
+    backend : {"numba", "numpy"}
+        The compiled kernel (default; falls back to numpy if numba is unavailable) or the
+        vectorised numpy reference. Both compute the same thing (tested).
 
     Returns
     -------
@@ -352,55 +380,119 @@ def rpnp(
         return EstimationFailed(f"rpnp: needs at least 4 points, got {n}")
     if not (np.isfinite(X).all() and np.isfinite(uv).all()):
         return EstimationFailed("rpnp: input contains NaN or inf")
-    if _degeneracy(X, 1e-9) < 2:
+    if _spread_rank(X, 1e-14) < 2:
         return EstimationFailed("rpnp: object points are coincident or collinear")
-    if _degeneracy(uv, 1e-9) < 2:
+    if _spread_rank(uv, 1e-14) < 2:
         return EstimationFailed(
             "rpnp: image points are coincident or collinear (object plane through the camera centre?)")
+    # 1. Rotation axis from a point pair.
+    if pair == "longest":
+        i1, i2 = _choose_pair_longest(uv)
+    elif pair == "random":
+        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(
+            0 if rng is None else rng)
+        i1, i2 = _choose_pair_random(uv, gen)
+    else:
+        raise ValueError(f"pair: must be 'longest' or 'random', got {pair!r}")
     with np.errstate(all="ignore"):
         try:
-            result = _rpnp(X, uv, pair=pair, rng=rng, refine=refine, return_all=return_all)
+            if backend == "numba" and _kernel() is not None:
+                result = _rpnp_numba(X, uv, i1, i2, refine=refine, return_all=return_all)
+            else:
+                result = _rpnp_numpy(X, uv, i1, i2, refine=refine, return_all=return_all)
         except np.linalg.LinAlgError as exc:
             return EstimationFailed(f"rpnp: linear algebra failed ({exc})")
     return result
 
 
-def _rpnp(
-    XXw: NDArray[np.float64], xx: NDArray[np.float64], *, pair: str,
-    rng: np.random.Generator | int | None, refine: bool, return_all: bool,
+_KERNEL: list[Any] = []
+
+
+def _kernel() -> Any:
+    """The compiled kernel, or None when numba is not importable."""
+    if not _KERNEL:
+        try:
+            from eaglemission.estimators._rpnp_kernel import rpnp_core
+        except ImportError:  # pragma: no cover - numba is a dependency
+            rpnp_core = None
+        _KERNEL.append(rpnp_core)
+    return _KERNEL[0]
+
+
+_STATUS = {
+    1: "rpnp: the chosen point pair is coincident in the object frame",
+    2: "rpnp: the P3P polynomial is not finite (degenerate geometry)",
+    3: "rpnp: the cost polynomial has no real local minimum",
+    4: "rpnp: the linear system has no finite solution",
+}
+
+
+def _finish(
+    Rs: NDArray[np.float64], ts: NDArray[np.float64], err: NDArray[np.float64],
+    XXw: NDArray[np.float64], xx: NDArray[np.float64], refine: bool, return_all: bool,
+) -> PoseEstimate | EstimationFailed:
+    valid = np.isfinite(err) & np.isfinite(Rs).all(axis=(1, 2)) & np.isfinite(ts).all(axis=1)
+    if not valid.any():
+        return EstimationFailed("rpnp: every candidate pose puts points behind the camera")
+    order = [int(k) for k in np.argsort(np.where(valid, err, np.inf)) if valid[k]]
+    best = order[0]
+    R, t = Rs[best], ts[best]
+    if refine:
+        R, t = refine_pose(R, t, XXw, xx)
+        e = float(reprojection_errors(R, t, XXw, xx).mean())
+    else:
+        e = float(err[best])
+    if not math.isfinite(e):
+        return EstimationFailed("rpnp: the chosen pose puts points behind the camera")
+    candidates = tuple((Rs[k], ts[k]) for k in order) if return_all else ()
+    if return_all and refine:
+        candidates = ((R, t),) + candidates[1:]
+    return PoseEstimate(R=R, t_m=t, reprojection_error=e, candidates=candidates)
+
+
+def _rpnp_numba(
+    XXw: NDArray[np.float64], xx: NDArray[np.float64], i1: int, i2: int, *, refine: bool,
+    return_all: bool,
+) -> PoseEstimate | EstimationFailed:
+    status, Rs, ts, err = _kernel()(np.ascontiguousarray(XXw), np.ascontiguousarray(xx), i1, i2)
+    if status:
+        return EstimationFailed(_STATUS[int(status)])
+    return _finish(Rs, ts, err, XXw, xx, refine, return_all)
+
+
+def _rpnp_numpy(
+    XXw: NDArray[np.float64], xx: NDArray[np.float64], i1: int, i2: int, *, refine: bool,
+    return_all: bool,
 ) -> PoseEstimate | EstimationFailed:
     n = XXw.shape[0]
-    xv = np.column_stack((xx, np.ones(n)))
-    xv /= np.linalg.norm(xv, axis=1, keepdims=True)
-
-    # 1. Rotation axis from a point pair.
-    if pair == "longest":
-        i1, i2 = _choose_pair_longest(xx)
-    elif pair == "random":
-        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(
-            0 if rng is None else rng)
-        i1, i2 = _choose_pair_random(xx, gen)
-    else:
-        raise ValueError(f"pair: must be 'longest' or 'random', got {pair!r}")
+    xv = np.empty((n, 3))
+    xv[:, :2] = xx
+    xv[:, 2] = 1.0
+    xv /= np.sqrt(np.einsum("ij,ij->i", xv, xv))[:, None]
     p1, p2 = XXw[i1], XXw[i2]
-    D1 = float(np.linalg.norm(p2 - p1))
-    scale = float(np.linalg.norm(XXw - XXw.mean(axis=0), axis=1).max())
+    d12 = p2 - p1
+    D1 = math.sqrt(float(d12 @ d12))
+    centred = XXw - XXw.sum(axis=0) / n
+    scale = math.sqrt(float(np.einsum("ij,ij->i", centred, centred).max()))
     if not D1 > 1e-12 * max(scale, 1e-300):
         return EstimationFailed("rpnp: the chosen point pair is coincident in the object frame")
     p0 = (p1 + p2) / 2.0
-    Ro = _frame_from_axis((p2 - p0) / np.linalg.norm(p2 - p0))
+    Ro = _frame_from_axis(d12 / D1)
     XX = (XXw - p0) @ Ro  # object points in the pair's frame (x along P_i1 -> P_i2)
 
     # 2. P3P quartics of the n - 2 triplets and the degree-7 polynomial.
     v1, v2 = xv[i1], xv[i2]
     cg1 = float(v1 @ v2)
     idx = np.ones(n, dtype=bool)
-    idx[[i1, i2]] = False
+    idx[i1] = False
+    idx[i2] = False
     vi = xv[idx]
     cg2 = vi @ v1
     cg3 = vi @ v2
-    D2 = np.linalg.norm(XX[idx] - XX[i1], axis=1)
-    D3 = np.linalg.norm(XX[idx] - XX[i2], axis=1)
+    e2 = XX[idx] - XX[i1]
+    e3 = XX[idx] - XX[i2]
+    D2 = np.sqrt(np.einsum("ij,ij->i", e2, e2))
+    D3 = np.sqrt(np.einsum("ij,ij->i", e3, e3))
     quartics = p3p_quartics(cg1, cg2, cg3, D1, D2, D3)
     poly7 = cost_derivative_poly7(quartics)
     if not np.isfinite(poly7).all():
@@ -411,67 +503,73 @@ def _rpnp(
     if t2s.size == 0:
         return EstimationFailed("rpnp: the cost polynomial has no real local minimum")
 
-    # 4. Per root: the rotation axis in the camera frame, then (c, s, t) from a 2n x 6 system.
-    d2 = cg1 + t2s
-    axes = v2[None, :] * d2[:, None] - v1[None, :]
-    norms = np.linalg.norm(axes, axis=1)
+    # 4. Per root: the rotation axis in the camera frame, then (c, s, t) from a 2n x 6 system,
+    #    all roots at once.
+    axes = np.outer(cg1 + t2s, v2) - v1
+    norms = np.sqrt(np.einsum("ij,ij->i", axes, axes))
     keep = norms > 1e-12
-    axes = axes[keep] / norms[keep, None]
-    if axes.shape[0] == 0:
+    if not keep.any():
         return EstimationFailed("rpnp: degenerate rotation axis")
-    Rxs = np.stack([_frame_from_axis(a) for a in axes])  # (m, 3, 3)
+    axes = axes[keep] / norms[keep, None]
+    Rxs = np.stack([_frame_from_axis(a) for a in axes])  # (m, 3, 3), columns x, y, z
     u = xx[:, 0]
     v = xx[:, 1]
     xi, yi, zi = XX[:, 0], XX[:, 1], XX[:, 2]
-    # X_c = M e_x xi + c (M e_y yi + M e_z zi) + s (M e_z yi - M e_y zi) + t
-    A = Rxs[:, None, :, 1] * yi[None, :, None] + Rxs[:, None, :, 2] * zi[None, :, None]  # (m,n,3)
-    B = Rxs[:, None, :, 2] * yi[None, :, None] - Rxs[:, None, :, 1] * zi[None, :, None]
+    # X_c = M e_x xi + c (M e_y yi + M e_z zi) + s (M e_z yi - M e_y zi) + t  (M = Rx)
+    My, Mz = Rxs[:, None, :, 1], Rxs[:, None, :, 2]
+    A = My * yi[None, :, None] + Mz * zi[None, :, None]  # (m, n, 3)
+    B = Mz * yi[None, :, None] - My * zi[None, :, None]
     C = Rxs[:, None, :, 0] * xi[None, :, None]
     m = Rxs.shape[0]
-    D = np.zeros((m, n, 2, 6))
-    D[:, :, 0, 0] = A[..., 0] - u * A[..., 2]
-    D[:, :, 0, 1] = B[..., 0] - u * B[..., 2]
-    D[:, :, 0, 2] = 1.0
-    D[:, :, 0, 4] = -u
-    D[:, :, 0, 5] = C[..., 0] - u * C[..., 2]
-    D[:, :, 1, 0] = A[..., 1] - v * A[..., 2]
-    D[:, :, 1, 1] = B[..., 1] - v * B[..., 2]
-    D[:, :, 1, 3] = 1.0
-    D[:, :, 1, 4] = -v
-    D[:, :, 1, 5] = C[..., 1] - v * C[..., 2]
-    D = D.reshape(m, 2 * n, 6)
-    DTD = np.einsum("mki,mkj->mij", D, D)
+    ones = np.ones((m, n))
+    zeros = np.zeros((m, n))
+    Du = np.stack((A[..., 0] - u * A[..., 2], B[..., 0] - u * B[..., 2], ones, zeros,
+                   -u * ones, C[..., 0] - u * C[..., 2]), axis=2)
+    Dv = np.stack((A[..., 1] - v * A[..., 2], B[..., 1] - v * B[..., 2], zeros, ones,
+                   -v * ones, C[..., 1] - v * C[..., 2]), axis=2)
+    D = np.concatenate((Du, Dv), axis=1)  # (m, 2n, 6)
+    DTD = np.matmul(D.transpose(0, 2, 1), D)
     _, V = np.linalg.eigh(DTD)
     sol = V[:, :, 0]
     last = sol[:, 5]
     ok = np.abs(last) > 1e-300
     if not ok.any():
         return EstimationFailed("rpnp: the linear system has no finite solution")
+    sol = sol[ok] / last[ok, None]
+    A, B, C = A[ok], B[ok], C[ok]
 
-    # 5. Final pose of each candidate by scaled Procrustes; keep the smallest reprojection error.
-    cands: list[tuple[float, Mat3, Vec3]] = []
-    for k in np.flatnonzero(ok):
-        c, s, tx, ty, tz = sol[k, :5] / last[k]
-        Xcs = C[k] + c * A[k] + s * B[k] + np.array([tx, ty, tz])
-        depth = np.linalg.norm(Xcs, axis=1)
-        XXc = xv * depth[:, None]
-        R, t = _umeyama(XXw, XXc)
-        if not (np.isfinite(R).all() and np.isfinite(t).all()):
-            continue
-        err = reprojection_errors(R, t, XXw, xx)
-        cands.append((float(err.mean()), R, t))
-    cands = [cd for cd in cands if math.isfinite(cd[0])]
-    if not cands:
-        return EstimationFailed("rpnp: every candidate pose puts points behind the camera")
-    cands.sort(key=lambda cd: cd[0])
-    _, R, t = cands[0]
-    if refine:
-        R, t = refine_pose(R, t, XXw, xx)
-    err = float(reprojection_errors(R, t, XXw, xx).mean())
-    if not math.isfinite(err):
-        return EstimationFailed("rpnp: the chosen pose puts points behind the camera")
-    candidates = tuple((cR, ct) for _, cR, ct in cands) if return_all else ()
-    return PoseEstimate(R=R, t_m=t, reprojection_error=err, candidates=candidates)
+    # 5. Final pose of each candidate by scaled Procrustes (batched); smallest reprojection error.
+    Xcs = C + sol[:, None, 0:1] * A + sol[:, None, 1:2] * B + sol[:, None, 2:5]
+    depth = np.sqrt(np.einsum("mij,mij->mi", Xcs, Xcs))
+    XXc = xv[None, :, :] * depth[:, :, None]
+    Rs, ts = _umeyama_batch(XXw, XXc)
+    Xc = np.matmul(XXw[None], Rs.transpose(0, 2, 1)) + ts[:, None, :]
+    z = Xc[..., 2]
+    proj = Xc[..., :2] / z[..., None]
+    diff = proj - xx[None]
+    err = np.sqrt(np.einsum("mij,mij->mi", diff, diff)).mean(axis=1)
+    err = np.where((z > 0).all(axis=1), err, np.inf)
+    return _finish(Rs, ts, err, XXw, xx, refine, return_all)
+
+
+def _umeyama_batch(obj: NDArray[np.float64], cams: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_umeyama` for m point sets at once: ``obj`` (n, 3), ``cams`` (m, n, 3)."""
+    n = obj.shape[0]
+    mx = obj.sum(axis=0) / n
+    my = cams.sum(axis=1) / n
+    X = obj - mx
+    Y = cams - my[:, None, :]
+    sigma_x2 = float(np.einsum("ij,ij->", X, X)) / n
+    U, d, Vt = np.linalg.svd(np.matmul(Y.transpose(0, 2, 1), X) / n)
+    det = np.linalg.det(np.matmul(U, Vt))
+    sign = np.where(det < 0, -1.0, 1.0)
+    U[:, :, 2] *= sign[:, None]
+    d = d.copy()
+    d[:, 2] *= sign
+    R = np.matmul(U, Vt)
+    scale = d.sum(axis=1) / sigma_x2 if sigma_x2 > 0 else np.ones(len(d))
+    t = my - scale[:, None] * (R @ mx)
+    return R, t
 
 
 # ---------------------------------------------------------------------------------------------
@@ -485,8 +583,9 @@ class RPnPConfig(BaseModel):
     pair: Literal["longest", "random"] = "longest"
     seed: int = 0
     refine: bool = False
-    mbr_correction: Literal["none", "box_fit"] = Field(
-        "box_fit", description="correct the MBR-vs-top-face bias (docs/estimators.md)")
+    mbr_correction: Literal["auto", "box_fit", "none"] = Field(
+        "auto", description="MBR model: auto = the better of box silhouette / top face alone; "
+                            "box_fit = silhouette; none = MBR corners are the top face (paper)")
     max_reprojection_error_px: float = Field(
         8.0, gt=0, description="reject poses whose mean corner reprojection error is larger")
     previous_pose_weight_px_per_m: float = Field(
@@ -513,7 +612,8 @@ class RPnPEstimator:
         self._core = CornerPoseEstimator(
             solver=solver, target=target, source="rpnp", mbr_correction=cfg.mbr_correction,
             max_reprojection_error_px=cfg.max_reprojection_error_px,
-            previous_pose_weight_px_per_m=cfg.previous_pose_weight_px_per_m, std_m=cfg.std_m)
+            previous_pose_weight_px_per_m=cfg.previous_pose_weight_px_per_m, std_m=cfg.std_m,
+            warm_up=True)
 
     def reset(self) -> None:
         self._core.reset()
