@@ -1,0 +1,98 @@
+"""``eaglemission sitl-vehicle``: run the PX4-like MAVLink emulator on its own.
+
+QGroundControl (listens on UDP 14550), MAVSDK (``udpin://0.0.0.0:14540``) or any MAVLink tool
+can connect to it::
+
+    eaglemission sitl-vehicle --mavlink udpout://127.0.0.1:14540      # for MAVSDK / the mission
+    eaglemission sitl-vehicle --mavlink udpout://127.0.0.1:14550      # for QGroundControl
+
+It runs until SIGTERM or SIGINT (a process started in the background from a non-interactive
+shell ignores SIGINT, so SIGTERM is handled too) or ``--duration-s``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+import time
+
+from eaglemission.commands import Command
+from eaglemission.errors import ConfigError
+
+
+def _add(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mavlink", default="udpout://127.0.0.1:14540",
+                   help="udpout://HOST:PORT (send first) or udpin://HOST:PORT (listen); "
+                        "default %(default)s (where MAVSDK listens for PX4 SITL)")
+    p.add_argument("--speedup", type=float, default=1.0,
+                   help="emulator time / wall time (dynamics and failsafe timers); keep <= 10 "
+                        "with offboard (MAVSDK streams setpoints every 50 ms wall)")
+    p.add_argument("--home", type=float, nargs=3, metavar=("LAT_DEG", "LON_DEG", "AMSL_M"),
+                   help="home position (default PX4 SITL's 47.397742 8.545594 489.4)")
+    p.add_argument("--seed", type=int, default=0, help="estimate drift / gust seed")
+    p.add_argument("--wind", type=float, nargs=2, default=(0.0, 0.0), metavar=("N_MPS", "E_MPS"),
+                   help="mean wind")
+    p.add_argument("--duration-s", type=float, default=None, help="stop after this long")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="PX4 parameter override, e.g. COM_OBL_RC_ACT=5 (repeatable)")
+
+
+def _params(items: list[str]) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"--param {item!r}: use NAME=VALUE, e.g. COM_OBL_RC_ACT=5")
+    return out
+
+
+def _run(args: argparse.Namespace) -> int:
+    from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
+    from rich.console import Console
+
+    console = Console()
+    kw: dict[str, object] = {"speedup": args.speedup, "seed": args.seed,
+                             "wind_ne_mps": tuple(args.wind), "params": _params(args.param)}
+    if args.home:
+        kw.update(home_latitude_deg=args.home[0], home_longitude_deg=args.home[1],
+                  home_altitude_amsl_m=args.home[2])
+    try:
+        cfg = EmulatorConfig(**kw)  # type: ignore[arg-type]
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    emu = Px4Emulator(cfg, link=args.mavlink)
+    try:
+        emu.start()
+        console.print(f"PX4-like emulator on [bold]{args.mavlink}[/bold] "
+                      f"(speed-up {cfg.speedup:g}); SIGTERM or Ctrl-C to stop")
+        deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
+        last_mode = None
+        while not stop.wait(0.2):
+            snap = emu.snapshot()
+            if (snap.mode, snap.armed) != last_mode:
+                last_mode = (snap.mode, snap.armed)
+                console.print(f"t={snap.sim_time_s:7.1f} s  mode {snap.mode.value}"
+                              f"{'  ARMED' if snap.armed else ''}")
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+    finally:
+        emu.stop()
+        for s, h in old.items():
+            signal.signal(s, h)
+    console.print("emulator stopped")
+    return 0
+
+
+SITL_VEHICLE_COMMAND = Command(
+    "run the PX4-like MAVLink emulator (for MAVSDK, QGroundControl, the mission)", _add, _run)
