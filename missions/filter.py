@@ -1,0 +1,141 @@
+"""A filter on the target's position in local NED: a static target with process noise.
+
+The target is assumed static in the world; its position *in the autopilot's local NED frame*
+still wanders slowly because the vehicle's own position estimate drifts, and because coarse
+(bearing) and fine (PnP) estimates disagree. A constant-position Kalman filter with a random-walk
+process noise captures both: missed frames only grow the covariance, so a few misses never abort
+the approach, and an outlier gate (Mahalanobis distance) rejects isolated wrong detections. A run
+of rejected measurements that agree with each other resets the filter (the target was
+re-acquired somewhere else, e.g. after a large estimate drift).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from eaglemission.types import XYZ
+
+
+class FilterConfig(BaseModel):
+    """Parameters of :class:`TargetFilter` (``mission.params.filter``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    process_noise_mps: float = Field(0.05, ge=0, description="random-walk sigma, m per sqrt(s)")
+    gate_sigma: float = Field(4.0, gt=0, description="Mahalanobis gate for outliers")
+    reset_after_rejections: int = Field(5, ge=1, description="consecutive consistent outliers")
+    min_std_m: float = Field(0.01, gt=0, description="floor on a measurement's std")
+
+
+@dataclass(frozen=True, slots=True)
+class FilteredTarget:
+    """Filter output at a time: position, 1-sigma per axis, time since the last update."""
+
+    position_ned_m: XYZ
+    std_m: XYZ
+    age_s: float
+    updates: int
+
+
+def predict_covariance(P: np.ndarray, dt_s: float, process_noise_mps: float) -> np.ndarray:
+    """Random-walk prediction ``P + q^2 dt I`` (the mean of a static target does not move)."""
+    return P + (process_noise_mps**2) * max(0.0, dt_s) * np.eye(3)
+
+
+def kalman_update(
+    x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Kalman update with identity measurement; returns (x, P, squared Mahalanobis distance)."""
+    S = P + R
+    innov = z - x
+    S_inv = np.linalg.inv(S)
+    d2 = float(innov @ S_inv @ innov)
+    K = P @ S_inv
+    x_new = x + K @ innov
+    I_K = np.eye(3) - K
+    P_new = I_K @ P @ I_K.T + K @ R @ K.T  # Joseph form: stays symmetric positive definite
+    return x_new, P_new, d2
+
+
+class TargetFilter:
+    """Constant-position Kalman filter on the target's NED position (thread-compatible: call
+    from one task)."""
+
+    def __init__(self, config: FilterConfig | None = None) -> None:
+        self.config = config or FilterConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        self._x: np.ndarray | None = None
+        self._P = np.eye(3)
+        self._t_ns = 0
+        self._t_update_ns = 0
+        self.updates = 0
+        self._rejected: list[np.ndarray] = []
+
+    @property
+    def initialised(self) -> bool:
+        return self._x is not None
+
+    def _predict_to(self, t_ns: int) -> None:
+        if t_ns > self._t_ns:
+            self._P = predict_covariance(self._P, (t_ns - self._t_ns) * 1e-9,
+                                         self.config.process_noise_mps)
+            self._t_ns = t_ns
+
+    def update(self, position_ned_m: XYZ, std_m: float | XYZ, t_ns: int, *,
+               allow_reset: bool = True) -> bool:
+        """Fuse one measurement; returns False when it was gated out as an outlier.
+        ``allow_reset=False`` never restarts the filter on a run of consistent outliers
+        (e.g. in the final approach, where a restart would follow a biased estimator)."""
+        z = np.asarray(position_ned_m, dtype=np.float64)
+        if z.shape != (3,) or not np.isfinite(z).all():
+            raise ValueError(f"position_ned_m: must be 3 finite numbers, got {position_ned_m}")
+        std = np.broadcast_to(np.asarray(std_m, dtype=np.float64), (3,))
+        std = np.maximum(std, self.config.min_std_m)
+        R = np.diag(std**2)
+        if self._x is None:
+            self._x, self._P = z.copy(), R.copy()
+            self._t_ns = self._t_update_ns = t_ns
+            self.updates = 1
+            return True
+        self._predict_to(t_ns)
+        x_new, P_new, d2 = kalman_update(self._x, self._P, z, R)
+        if d2 > self.config.gate_sigma**2:
+            self._rejected.append(z)
+            if allow_reset and len(self._rejected) >= self.config.reset_after_rejections:
+                pts = np.array(self._rejected)
+                spread = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+                if spread <= self.config.gate_sigma * float(std.max()):
+                    # the outliers agree with each other: the target is elsewhere, restart there
+                    self._x, self._P = pts.mean(axis=0), R.copy()
+                    self._t_ns = self._t_update_ns = t_ns
+                    self.updates = 1
+                    self._rejected = []
+                    return True
+                self._rejected = self._rejected[1:]
+            elif len(self._rejected) > self.config.reset_after_rejections:
+                self._rejected = self._rejected[1:]
+            return False
+        self._rejected = []
+        self._x, self._P = x_new, P_new
+        self._t_update_ns = t_ns
+        self.updates += 1
+        return True
+
+    def state(self, t_ns: int) -> FilteredTarget | None:
+        """The estimate at ``t_ns`` (covariance predicted forward), None before any update."""
+        if self._x is None:
+            return None
+        P = predict_covariance(self._P, (t_ns - self._t_ns) * 1e-9, self.config.process_noise_mps)
+        x = self._x
+        return FilteredTarget(
+            (float(x[0]), float(x[1]), float(x[2])),
+            tuple(math.sqrt(max(0.0, float(v))) for v in np.diag(P)),  # type: ignore[arg-type]
+            max(0.0, (t_ns - self._t_update_ns) * 1e-9),
+            self.updates,
+        )

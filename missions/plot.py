@@ -1,0 +1,75 @@
+"""``eaglemission run --plot out.png``: trajectory, target and state changes (matplotlib Agg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from eaglemission.config import MissionFile
+
+STATE_COLOURS = {"PREFLIGHT": "#999999", "TAKEOFF": "#8c564b", "CRUISE": "#1f77b4",
+                 "COARSE_APPROACH": "#ff7f0e", "FINE_APPROACH": "#d62728",
+                 "GRASP_READY": "#2ca02c", "TARGET_LOST": "#9467bd", "DONE": "#17becf",
+                 "FAILSAFE": "#e377c2"}
+
+
+def plot_outcome(out: Any, cfg: MissionFile, path: Path) -> None:
+    """Top view (true and estimated path, route, target, state changes) and altitude/time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    traj = out.trajectory
+    t0 = out.t0_ns
+    ts = [(s.timestamp_ns - t0) * 1e-9 for s in traj]
+    n = [s.position_ned_m[0] for s in traj]
+    e = [s.position_ned_m[1] for s in traj]
+    alt = [-s.position_ned_m[2] for s in traj]
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 5.5), gridspec_kw={"width_ratios": [1.2, 1]})
+    route = [(w.east_m, w.north_m) for w in cfg.mission.route]
+    ax.plot(*zip(*route), "k--", lw=1, label="route")
+    ax.plot(e, n, color="#1f77b4", lw=1.5, label="true path")
+    if out.estimated_trajectory:
+        ax.plot([p[1] for _, p in out.estimated_trajectory],
+                [p[0] for _, p in out.estimated_trajectory], color="#aaaaaa", lw=1,
+                label="reported (estimate)")
+    tn, te, _ = out.target_position_ned_m
+    ax.plot(te, tn, "s", color="#d62728", ms=9, label="target (truth)")
+    for t_s, state, _reason in out.result.states[1:]:
+        i = min(range(len(ts)), key=lambda k: abs(ts[k] - t_s)) if ts else None
+        if i is None:
+            continue
+        ax.plot(e[i], n[i], "o", color=STATE_COLOURS.get(state, "k"), ms=6)
+        ax.annotate(state, (e[i], n[i]), fontsize=7, xytext=(4, 4), textcoords="offset points")
+    fence = cfg.safety.geofence
+    if fence.radius_m is not None and fence.radius_m < 200:
+        import numpy as np
+
+        a = np.linspace(0, 2 * np.pi, 200)
+        ax.plot(fence.radius_m * np.sin(a), fence.radius_m * np.cos(a), ":", color="#999999",
+                lw=1, label="geofence")
+        ax.set_xlim(min(e + [te]) - 5, max(e + [te]) + 5)
+        ax.set_ylim(min(n + [tn]) - 5, max(n + [tn]) + 5)
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_aspect("equal", adjustable="box")
+    ax.legend(fontsize=8, loc="best")
+    ax.set_title("top view (local NED, home at 0)")
+    ax2.plot(ts, alt, color="#1f77b4", lw=1.5, label="altitude (true)")
+    states = out.result.states + [(out.result.t_end_s, "", "")]
+    for (a_t, st, _), (b_t, _, _) in zip(states[:-1], states[1:]):
+        ax2.axvspan(a_t, b_t, color=STATE_COLOURS.get(st, "#ffffff"), alpha=0.15, lw=0)
+        ax2.text(a_t, max(alt or [1]) * 1.02, st, fontsize=6, rotation=60, va="bottom")
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("altitude above home (m)")
+    ev = out.evaluation
+    title = f"{out.result.final_state}: {out.result.reason}"
+    if ev.horizontal_error_m is not None:
+        title += (f"\ntool point: {ev.horizontal_error_m * 100:.1f} cm horizontal, "
+                  f"grasp distance {ev.grasp_distance_m:.3f} m")
+    ax2.set_title(title, fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,155 @@
+"""The state machine: one table, pure guards, failsafes, timeouts, the Mermaid doc."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+from eaglemission.missions import approach as ap
+from eaglemission.missions.approach import (
+    ACTIVE_STATES,
+    TRANSITIONS,
+    Abort,
+    ApproachConfig,
+    ApproachMachine,
+    MissionState,
+    Snapshot,
+    failsafe,
+    mermaid_diagram,
+)
+from transitions import MachineError
+
+from eaglemission.config import load_config
+
+S = MissionState
+DOC = Path(__file__).resolve().parents[2] / "docs" / "mission.md"
+
+READY = Snapshot(armable=True, position_valid=True, cameras_streaming=True, detector_warm=True,
+                 telemetry_hz=50.0)
+
+
+def machine_in(state: MissionState) -> ApproachMachine:
+    m = ApproachMachine()
+    m.machine.set_state(state)  # test setup only: the model has no to_<state>() shortcuts
+    return m
+
+
+def test_table_uses_enum_states_and_no_auto_transitions() -> None:
+    m = ApproachMachine()
+    for t in TRANSITIONS:
+        srcs = t["source"] if isinstance(t["source"], list) else [t["source"]]
+        assert all(isinstance(s, MissionState) for s in srcs)
+        assert isinstance(t["dest"], MissionState)
+    assert not hasattr(m, "to_CRUISE") and not hasattr(m, "to_GRASP_READY")
+    with pytest.raises(MachineError):
+        m.trigger("tool_point_at_grasp", READY)  # not allowed from PREFLIGHT
+
+
+def test_nominal_sequence_needs_every_guard() -> None:
+    changes: list[tuple[str, str]] = []
+    m = ApproachMachine(on_change=lambda a, b, r: changes.append((a.value, b.value)))
+    assert m.step(Snapshot()) is None and m.state is S.PREFLIGHT  # nothing ready yet
+    assert m.step(READY) == "preflight_passed"
+    assert m.step(Snapshot(in_air=True, altitude_m=2.0, takeoff_altitude_m=5.0)) is None
+    assert m.step(Snapshot(in_air=True, altitude_m=4.9, takeoff_altitude_m=5.0)) == "reached_altitude"
+    assert m.step(Snapshot(confirmed_frames=2, confirm_frames=3)) is None
+    assert m.step(Snapshot(confirmed_frames=3, confirm_frames=3)) == "target_detected"
+    near = Snapshot(has_target=True, target_age_s=0.1, target_in_narrow_view=True)
+    assert m.step(near) is None  # narrow detector not warm yet
+    assert m.step(dataclasses.replace(near, narrow_warm=True)) == "in_narrow_view"
+    fine = Snapshot(has_target=True, target_age_s=0.1, grasp_required_frames=5)
+    assert m.step(dataclasses.replace(fine, grasp_stable_frames=4)) is None
+    assert m.step(dataclasses.replace(fine, grasp_stable_frames=5)) == "tool_point_at_grasp"
+    assert m.step(dataclasses.replace(fine, grasp_done=True)) == "grasp_complete"
+    assert m.final and m.state is S.DONE
+    assert [b for _, b in changes] == ["TAKEOFF", "CRUISE", "COARSE_APPROACH", "FINE_APPROACH",
+                                       "GRASP_READY", "DONE"]
+
+
+def test_target_lost_and_reacquired() -> None:
+    m = machine_in(S.FINE_APPROACH)
+    fresh = Snapshot(has_target=True, target_age_s=0.5, target_lost_after_s=2.5)
+    assert m.step(fresh) is None
+    # stale but not expected in view (too close for the camera): keep going on the filter
+    assert m.step(dataclasses.replace(fresh, target_age_s=3.0, target_expected_visible=False)) is None
+    assert m.step(dataclasses.replace(fresh, target_age_s=3.0)) == "lost"
+    assert m.state is S.TARGET_LOST
+    assert m.step(Snapshot(has_target=True, confirmed_frames=3, confirm_frames=3)) == "reacquired"
+    assert m.state is S.COARSE_APPROACH
+
+
+@pytest.mark.parametrize("state", ACTIVE_STATES)
+def test_abort_from_every_active_state(state: MissionState) -> None:
+    m = machine_in(state)
+    assert m.step(Snapshot(), Abort("test", "land")) == "abort"
+    assert m.state is S.FAILSAFE and m.action == "land" and m.reason == "test"
+    assert m.step(READY, Abort("again", "hold")) is None  # final: nothing fires any more
+
+
+def _fs(state: MissionState, snap: Snapshot, **params: object) -> Abort | None:
+    cfg = load_config(check_plugins=False)
+    return failsafe(state, snap, cfg.mission, cfg.safety, ApproachConfig(**params))
+
+
+def test_failsafes_map_to_configured_actions() -> None:
+    cfg = load_config(check_plugins=False)
+    s = cfg.safety
+    assert _fs(S.CRUISE, Snapshot(link_lost_s=2.0)).action == s.link_loss_action
+    assert _fs(S.CRUISE, Snapshot(link_lost_s=1.0)) is None  # below link_loss_timeout_s
+    assert _fs(S.CRUISE, Snapshot(gps_ok=False)).action == s.gps_loss_action
+    assert _fs(S.FINE_APPROACH, Snapshot(battery_remaining=0.1)).action == s.low_battery_action
+    assert _fs(S.CRUISE, Snapshot(pilot_override=True)).action == "release"
+    assert _fs(S.CRUISE, Snapshot(camera_failed=True),
+               camera_failure_action="land").action == "land"
+    assert _fs(S.COARSE_APPROACH, Snapshot(goal_inside_geofence=False),
+               geofence_action="hold").action == "hold"
+    # on the ground nothing is flown: failures end with action none
+    assert _fs(S.PREFLIGHT, Snapshot(battery_remaining=0.1)).action == "none"
+    # priority: link loss is reported before the mode change it causes
+    both = _fs(S.CRUISE, Snapshot(link_lost_s=2.0, pilot_override=True))
+    assert both.reason.startswith("link lost")
+
+
+def test_state_timeouts() -> None:
+    assert _fs(S.CRUISE, Snapshot(time_in_state_s=10, state_timeout_s=120)) is None
+    ab = _fs(S.CRUISE, Snapshot(time_in_state_s=121, state_timeout_s=120), timeout_action="land")
+    assert ab is not None and "timed out" in ab.reason and ab.action == "land"
+    # TARGET_LOST with on_target_lost=resume_cruise: no abort, the resume transition fires
+    lost = Snapshot(time_in_state_s=16, state_timeout_s=15, search_exhausted=True)
+    assert _fs(S.TARGET_LOST, lost) is None
+    m = machine_in(S.TARGET_LOST)
+    assert m.step(lost) == "resume_cruise" and m.state is S.CRUISE
+
+
+def test_route_end_without_target_is_a_failsafe() -> None:
+    ab = _fs(S.CRUISE, Snapshot(route_finished=True), route_end_action="return")
+    assert ab is not None and ab.action == "return"
+
+
+def test_guards_are_pure() -> None:
+    snap = dataclasses.replace(READY, confirmed_frames=3)
+    before = dataclasses.asdict(snap)
+    for guard in (ap.preflight_ok, ap.takeoff_done, ap.target_confirmed, ap.narrow_ready,
+                  ap.grasp_stable, ap.target_lost, ap.state_timed_out):
+        assert guard(snap) == guard(snap)
+    assert dataclasses.asdict(snap) == before
+
+
+def test_mermaid_doc_is_up_to_date() -> None:
+    text = DOC.read_text(encoding="utf-8")
+    assert mermaid_diagram() in text, (
+        "docs/mission.md is stale: regenerate with "
+        "`python -m eaglemission.missions.approach --mermaid`")
+
+
+def test_px4_failsafe_parameters_are_reported() -> None:
+    from eaglemission.missions.runner import failsafe_param_warnings
+
+    cfg = load_config(check_plugins=False)
+    w = failsafe_param_warnings({"RTL_RETURN_ALT": 60.0, "MPC_Z_VEL_MAX_UP": 3.0,
+                                 "COM_OBL_RC_ACT": 0.0, "COM_OF_LOSS_T": 1.0}, cfg.safety)
+    assert any(x.startswith("RTL_RETURN_ALT") for x in w)
+    assert any(x.startswith("MPC_Z_VEL_MAX_UP") for x in w)
+    assert any("Position mode" in x and "descends and lands" in x for x in w)
+    assert failsafe_param_warnings({"RTL_RETURN_ALT": 10.0}, cfg.safety) == []
