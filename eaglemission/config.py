@@ -482,5 +482,21 @@ def load_config(path: str | Path | None = None, *, check_plugins: bool = True) -
     else:
         text = read_config_text(path)
         source = str(path)
-    return validate_mapping(parse_yaml(text, source=source), source=source, check_plugins=check_plugins)
+    cfg = validate_mapping(parse_yaml(text, source=source), source=source, check_plugins=check_plugins)
+    base = Path(path).resolve().parent if path is not None else None
+    return resolve_relative_paths(cfg, base)
+
+
+def resolve_relative_paths(cfg: MissionFile, base_dir: Path | None) -> MissionFile:
+    """Make ``cameras.*.calibration_file`` absolute, relative to the mission file's folder
+    (the embedded configs resolve against the installed ``eaglemission.configs`` package)."""
+    if base_dir is None:
+        base_dir = Path(str(resources.files("eaglemission.configs")))
+    cams = {}
+    for name in ("wide", "narrow"):
+        cam = getattr(cfg.cameras, name)
+        if cam.calibration_file is not None and not Path(cam.calibration_file).is_absolute():
+            cam = cam.model_copy(update={"calibration_file": str(base_dir / cam.calibration_file)})
+        cams[name] = cam
+    return cfg.model_copy(update={"cameras": cfg.cameras.model_copy(update=cams)})
 
