@@ -253,9 +253,13 @@ def test_validate_cli_names_the_path_and_value(tmp_path: Path) -> None:
     assert "cameras.narrow.focal_length_mm: must be > 0, got -12" in r.stderr
 
 
-def test_validate_cli_accepts_shipped_sitl_config() -> None:
-    r = run_cli("validate", str(REPO / "configs" / "sitl_synthetic.yaml"))
+@pytest.mark.parametrize("name", [p.name for p in SHIPPED])
+def test_validate_cli_accepts_every_shipped_config(name: str) -> None:
+    r = run_cli("validate", str(REPO / "configs" / name))
     assert r.returncode == 0, r.stderr
+
+
+def test_validate_cli_embedded_default() -> None:
     r = run_cli("validate")
     assert r.returncode == 0, r.stderr
 
