@@ -23,7 +23,8 @@ Model (NED, metres, seconds), in the spirit of PX4's multicopter position contro
 * **Physics**: ``a = a_thrust + drag (wind - v)`` (air drag on the airspeed); the ground
   (``down = 0``) stops a descent and holds a landed vehicle in place.
 * **Command latency**: a command takes effect ``command_latency_s`` after it was issued
-  (link + autopilot reaction); internal commands (autopilot's own mode logic) can be immediate.
+  (link + autopilot reaction); internal commands (autopilot's own mode logic) can be immediate,
+  and an immediate command drops the commands still in flight (the newest command wins).
 * **Estimate**: :class:`EstimateModel` adds a slowly drifting, bounded error (an
   Ornstein-Uhlenbeck random walk of a few cm to dm, seeded) to the true position: that is what
   the autopilot reports and controls on; GPS loss makes it drift away linearly.
@@ -468,6 +469,12 @@ class MulticopterDynamics:
     # -- commands --------------------------------------------------------------------------------
     def _issue(self, cmd: _Command, immediate: bool) -> None:
         if immediate:
+            # The newest command wins. Commands still in flight were issued *before* this one
+            # (an external hold/setpoint a few ms ago): applying them after it, when their
+            # latency elapses, would undo the autopilot's newer decision -- e.g. a
+            # RETURN_TO_LAUNCH climb overwritten by the hold sent just before it, leaving the
+            # vehicle hovering in RTL forever, since the mode logic commands each phase once.
+            self._pending.clear()
             self._apply(cmd)
         else:
             self._pending.append((self._target_ns + self._latency_ns, cmd))

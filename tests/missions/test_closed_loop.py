@@ -7,11 +7,13 @@ defaults is measured by ``benchmarks/bench_mission.py``.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
+from eaglemission.drivers.vehicles.simulated import SimulatedVehicleConfig
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import Fault, run_simulation
+from eaglemission.missions.sim import Fault, run_simulation, vehicle_params
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile
@@ -19,6 +21,43 @@ from eaglemission.config import MissionFile
 
 def _states(out) -> list[str]:
     return [s for _, s, _ in out.result.states]
+
+
+def _assert_came_down(cfg: MissionFile, out, recs: list[dict], action: str) -> float:
+    """The accepted ``return`` / ``land`` command was carried out: the TRUE trajectory shows
+    the vehicle on the ground and disarmed (and staying so) within a time bounded from the
+    vehicle's own speeds; at home for ``return``, in place for ``land``. Returns the time (s)."""
+    cmds = [r for r in recs if r["kind"] == "command" and r["name"] == action and r["ok"]]
+    assert cmds, f"no accepted {action!r} command in the log"
+    t_cmd = cmds[-1]["t_ns"]
+    after = [s for s in out.trajectory if s.timestamp_ns >= t_cmd]
+    assert after, "no trajectory after the command"
+    start = after[0]
+    down_i = next((i for i, s in enumerate(after) if not s.armed and not s.in_air), None)
+    last = after[-1]
+    assert down_i is not None, (f"{action}: still armed={last.armed} in_air={last.in_air} at "
+                                f"{last.position_ned_m} in {last.flight_mode.value}, "
+                                f"{(last.timestamp_ns - t_cmd) / 1e9:.1f} s after the command")
+    down = after[down_i]
+    assert all(not s.armed and s.position_ned_m[2] == 0.0 for s in after[down_i:])
+    vp = SimulatedVehicleConfig.model_validate(vehicle_params(cfg))
+    dp = vp.dynamics
+    alt_m = -start.position_ned_m[2]
+    settle_s = vp.land_detect_s + vp.auto_disarm_after_land_s + 5.0  # + margin
+    took_s = (down.timestamp_ns - t_cmd) / 1e9
+    if action == "return":
+        rtl_alt = max(alt_m, vp.rtl_return_altitude_m)
+        bound_s = ((rtl_alt - alt_m) / dp.max_up_speed_mps
+                   + math.hypot(*start.position_ned_m[:2]) / dp.cruise_speed_mps
+                   + rtl_alt / dp.land_speed_mps + settle_s)
+        assert math.hypot(*down.position_ned_m[:2]) < 1.5, down.position_ned_m  # at home
+    else:
+        bound_s = alt_m / dp.land_speed_mps + settle_s
+        # in place (without GPS the estimate, and so the truth, drifts at gps_loss_drift_mps)
+        drift_m = dp.gps_loss_drift_mps * took_s + 1.0
+        assert math.dist(down.position_ned_m[:2], start.position_ned_m[:2]) < drift_m
+    assert took_s <= bound_s, f"{action} took {took_s:.1f} s > {bound_s:.1f} s"
+    return took_s
 
 
 def _log_intact(path: Path, out) -> list[dict]:
@@ -45,6 +84,7 @@ def test_nominal_mission_reaches_grasp_ready(fast_config: MissionFile, tmp_path:
     recs = _log_intact(log, out)
     assert any(r["kind"] == "setpoint" and r["latency_ms"] is not None for r in recs)
     assert any(r["kind"] == "command" and r["name"] == "grab" and r["ok"] for r in recs)
+    _assert_came_down(fast_config, out, recs, "land")
 
 
 @pytest.mark.parametrize("fault,state,final,action", [
@@ -63,6 +103,8 @@ def test_failsafe_faults_end_as_configured(fast_config: MissionFile, tmp_path: P
     assert out.evaluation.violations == []
     recs = _log_intact(log, out)
     assert any(r["kind"] == "event" and r.get("source") == "fault" for r in recs)
+    if action in ("return", "land"):
+        _assert_came_down(fast_config, out, recs, action)
 
 
 @pytest.mark.parametrize("fault", [Fault("camera_dropout", "FINE_APPROACH", 0.5, 1.0),
@@ -88,10 +130,10 @@ def test_geofence_at_the_target(fast_config: MissionFile, tmp_path: Path) -> Non
     assert "geofence" in out.result.reason or "route" in out.result.reason
     assert out.result.action == "return"
     assert out.evaluation.violations == []
+    assert out.evaluation.ended_safe and out.evaluation.landed, out.evaluation.explanation
     recs = _log_intact(log, out)
-    # the return was commanded and accepted (whether the vehicle then lands is the vehicle's
-    # business; see docs/mission.md "Known issues")
-    assert any(r["kind"] == "command" and r["name"] == "return" and r["ok"] for r in recs)
+    # the return was accepted AND flown: home, landed, disarmed within the bound
+    _assert_came_down(cfg, out, recs, "return")
 
 
 def test_record_writes_both_streams_and_telemetry(fast_config: MissionFile,

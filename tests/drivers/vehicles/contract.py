@@ -37,7 +37,7 @@ import pytest
 
 from eaglemission.clock import Clock
 from eaglemission.errors import DriverError, ModeChangedExternally, VehicleError
-from eaglemission.geometry import ned_to_geodetic, wrap_deg
+from eaglemission.geometry import geodetic_to_ned, ned_to_geodetic, wrap_deg
 from eaglemission.interfaces import Vehicle
 from eaglemission.types import FlightMode, Setpoint, VehicleState, Waypoint
 
@@ -45,6 +45,7 @@ TAKEOFF_ALTITUDE_M = 5.0
 TAKEOFF_TIMEOUT_S = 40.0
 MOVE_TIMEOUT_S = 40.0
 LAND_TIMEOUT_S = 60.0
+RTL_TIMEOUT_S = 180.0  # PX4's default RTL_RETURN_ALT is 60 m: climb, return, descend at ~1 m/s
 SETPOINT_PERIOD_S = 0.05  # 20 Hz, like MAVSDK's own re-sending
 HOOKS = frozenset({"link_loss", "pilot_mode_change", "block_event_loop"})
 
@@ -396,3 +397,36 @@ class VehicleContract:
         assert s.relative_altitude_m < 1.0
         await b.vehicle.disarm()  # accepted on the ground (or already auto-disarmed)
         await b.wait(lambda st: not st.armed, 3.0 + b.report_lag_s, "disarmed")
+
+    async def test_return_to_launch_right_after_offboard_lands_at_home(
+            self, vehicle_backend: VehicleBackend) -> None:
+        """What a mission's final action does: leave offboard, then return at once. The vehicle
+        must start moving, come home, land and disarm by itself (PX4: "Disarmed by landing")."""
+        b = vehicle_backend
+        await take_off(b)
+        first = await start_offboard_here(b)
+        goal = Setpoint(first.north_m + 6.0, first.east_m + 3.0, first.down_m, first.yaw_deg)
+        await stream_until(b, goal, lambda st: _dist(st.position_ned_m, goal.position_ned_m) < 1.0,
+                           MOVE_TIMEOUT_S, "offboard point")
+        await b.vehicle.set_setpoint(goal)
+        await b.vehicle.stop_offboard()
+        await b.vehicle.return_to_launch()  # no pause: nothing still in flight may undo it
+        t0 = b.clock.now_ns()
+        s0 = await b.wait(lambda st: st.flight_mode == FlightMode.RETURN_TO_LAUNCH,
+                          1.0 + b.report_lag_s, "RETURN_TO_LAUNCH")
+
+        def home_distance_m(st: VehicleState) -> float:
+            assert st.home is not None
+            n, e, _ = geodetic_to_ned(st.home, st.geodetic)
+            return math.hypot(n, e)
+
+        d0 = home_distance_m(s0)
+        assert d0 > 5.0
+        # on its way within seconds: climbing to the return altitude or flying home
+        await b.wait(lambda st: st.relative_altitude_m > s0.relative_altitude_m + 1.0
+                     or home_distance_m(st) < d0 - 1.0, 10.0 + b.report_lag_s, "RTL under way")
+        s = await b.wait(lambda st: not st.armed and not st.in_air, RTL_TIMEOUT_S,
+                         "RTL landed and disarmed")
+        assert home_distance_m(s) < 2.0, s.position_ned_m  # home vs EKF origin: decimetres
+        assert s.relative_altitude_m < 1.5  # PX4 on the ground reads -1.2 .. +0.1 m
+        assert (b.clock.now_ns() - t0) / 1e9 < RTL_TIMEOUT_S

@@ -65,8 +65,11 @@ class EmulatorBackend(BackendBase):
 
 def make_emulator_backend(seed: int = 5) -> EmulatorBackend:
     clock = ScaledClock(SPEEDUP)
+    # RTL_RETURN_ALT 10 m as in the recorded scenario (c) (PX4's default 60 m only makes the
+    # return test slower)
     emu = Px4Emulator(EmulatorConfig(speedup=SPEEDUP, seed=seed,
-                                     stream_rates_hz={"HEARTBEAT": 2.0}))
+                                     stream_rates_hz={"HEARTBEAT": 2.0},
+                                     params={"RTL_RETURN_ALT": 10.0}))
     vehicle = MavsdkVehicle(
         MavsdkVehicle.Config(url="raw://", connect_timeout_s=10.0, command_timeout_s=1.5,
                              watchdog_timeout_s=WATCHDOG_WALL_S, link_timeout_s=1.5),

@@ -141,6 +141,23 @@ def test_command_latency() -> None:
     assert dyn.vd < 0.0
 
 
+def test_immediate_command_supersedes_commands_still_in_flight() -> None:
+    """The newest command wins: an external hold still in its latency must not be applied
+    after the autopilot's own (immediate) climb, which is issued once and never repeated."""
+    dyn = _airborne(seed=2)
+    dyn.command_hold()  # external, 30 ms latency
+    dyn.command_position(Setpoint(0.0, 0.0, -10.0, 0.0), immediate=True)  # e.g. RTL climb
+    dyn.step(0.1)
+    assert dyn.setpoint_ned_m[2] == -10.0
+    dyn.step(6.0)
+    assert dyn.pd < -9.0
+    # delayed commands keep their order among themselves
+    dyn.command_position(Setpoint(3.0, 0.0, -10.0, 0.0))
+    dyn.command_hold()
+    dyn.step(0.1)
+    assert dyn.setpoint_ned_m[0] < 1.0
+
+
 def test_wind_is_rejected_with_lag_and_the_body_leans_into_it() -> None:
     dyn = _airborne(wind_ne_mps=(0.0, 5.0))
     worst = 0.0

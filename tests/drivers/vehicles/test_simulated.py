@@ -478,3 +478,192 @@ async def test_takeoff_duration_same_order_as_recorded_px4(px4_tlogs: object) ->
     await wait_until(lambda: v.state().relative_altitude_m >= 4.5, 30.0, clock=clock, poll_s=0.01)
     ours = (clock.now_ns() - t0) / 1e9
     assert 0.5 * recorded <= ours <= 1.2 * recorded, (ours, recorded)
+
+
+# ---------------------------------------------------------------------------------------------
+# RETURN_TO_LAUNCH / LAND right after other commands (regression: a hold or setpoint still in
+# its command latency used to be applied *after* the RTL's climb and leave the vehicle hovering
+# in RTL for ever; the mission's final action sends stop_offboard() then return_to_launch() at
+# the same instant)
+# ---------------------------------------------------------------------------------------------
+RTL_ALT_M = 10.0
+
+
+def make_safe(**cfg: object) -> tuple[SimulatedVehicle, object, ManualClock]:
+    """A simulated vehicle wrapped in the safety envelope, as the mission runner flies it."""
+    from eaglemission.config import SafetyConfig
+    from eaglemission.safety import SafeVehicle
+
+    cfg.setdefault("rtl_return_altitude_m", RTL_ALT_M)
+    sim, clock = make(**cfg)
+    return sim, SafeVehicle(sim, SafetyConfig(), clock=clock), clock
+
+
+async def _offboard_to(v: object, clock: ManualClock, goal: Setpoint, duration_s: float) -> None:
+    s = v.state()  # type: ignore[attr-defined]
+    await v.start_offboard(Setpoint(*s.position_ned_m, s.yaw_deg))  # type: ignore[attr-defined]
+    t_end = clock.now_ns() + int(duration_s * 1e9)
+    while clock.now_ns() < t_end:
+        await v.set_setpoint(goal)  # type: ignore[attr-defined]
+        await clock.sleep(0.05)
+    await v.set_setpoint(goal)  # type: ignore[attr-defined]  # still in flight when RTL comes
+
+
+async def _fly_rtl_to_the_end(sim: SimulatedVehicle, clock: ManualClock,
+                              timeout_s: float) -> tuple[float, float, float]:
+    """Wait (bounded) for the return to end disarmed; (duration s, max true altitude m, max true
+    horizontal speed m/s)."""
+    t0 = clock.now_ns()
+    max_alt = max_speed = 0.0
+
+    def disarmed() -> bool:
+        nonlocal max_alt, max_speed
+        t = sim.true_state()
+        max_alt = max(max_alt, -t.position_ned_m[2])
+        max_speed = max(max_speed, math.hypot(*t.velocity_ned_mps[:2]))
+        return not sim.state().armed
+
+    await wait_until(disarmed, timeout_s, clock=clock, poll_s=0.1, what="RTL landed and disarmed")
+    return (clock.now_ns() - t0) / 1e9, max_alt, max_speed
+
+
+def _assert_landed_at_home(sim: SimulatedVehicle) -> None:
+    t = sim.true_state()
+    assert t.position_ned_m[2] == 0.0 and not t.in_air and not t.armed
+    assert math.hypot(*t.position_ned_m[:2]) < 1.5, t.position_ned_m  # estimate drift < 0.3 m
+    assert "RTL: land at destination" in [e.text for e in sim.events()]
+
+
+@pytest.mark.parametrize("before", ["hold", "stop_offboard", "setpoint", "goto_then_hold"])
+@pytest.mark.parametrize("gap_s", [0.0, 0.01])  # both inside the 30 ms command latency
+async def test_rtl_right_after_another_command_climbs_returns_lands_disarms(before: str,
+                                                                           gap_s: float) -> None:
+    sim, v, clock = make_safe()
+    await airborne(sim, clock, alt=5.0)
+    goal = Setpoint(12.0, -6.0, -5.0, 0.0)
+    if before == "goto_then_hold":
+        from eaglemission.geometry import ned_to_geodetic
+
+        home = sim.state().home
+        assert home is not None
+        await v.goto(ned_to_geodetic(home, goal.north_m, goal.east_m, -5.0), 0.0)
+        await wait_until(lambda: math.dist(sim.state().position_ned_m[:2], (12.0, -6.0)) < 0.5,
+                         30.0, clock=clock)
+    else:
+        await _offboard_to(v, clock, goal, 8.0)
+    far = sim.true_state().position_ned_m
+    assert math.hypot(*far[:2]) > 12.0
+    if before in ("hold", "goto_then_hold"):
+        await v.hold()
+    elif before == "stop_offboard":
+        await v.stop_offboard()
+    if gap_s:
+        await clock.sleep(gap_s)
+    await v.return_to_launch()
+    assert sim.state().flight_mode == FlightMode.RETURN_TO_LAUNCH
+    await clock.sleep(3.0)  # it must be on its way at once, not hovering
+    assert -sim.true_state().position_ned_m[2] > 5.0 + 2.0
+    cfg = sim.config
+    dist_m = math.hypot(*far[:2])
+    # climb 5 m + return at cruise speed + descend 10 m + land detection and auto-disarm
+    bound_s = (5.0 / 1.0 + dist_m / cfg.dynamics.cruise_speed_mps + RTL_ALT_M / cfg.dynamics.land_speed_mps
+               + cfg.land_detect_s + cfg.auto_disarm_after_land_s + 5.0)
+    duration_s, max_alt, max_speed = await _fly_rtl_to_the_end(sim, clock, bound_s)
+    assert 9.3 < max_alt < 10.6  # at the configured RTL altitude
+    assert 0.8 * cfg.dynamics.cruise_speed_mps < max_speed < cfg.dynamics.cruise_speed_mps + 0.3
+    _assert_landed_at_home(sim)
+    assert modes(sim)[-2:] == ["RETURN_TO_LAUNCH", "HOLD"]  # disarmed by landing
+    assert duration_s < bound_s
+
+
+@pytest.mark.parametrize("when", ["mid_mission", "mission_finished"])
+async def test_rtl_after_a_mission_returns_and_lands(when: str) -> None:
+    sim, v, clock = make_safe()
+    await airborne(sim, clock, alt=5.0)
+    await v.upload_mission([Waypoint(15.0, 0.0, 6.0, speed_mps=4.0), Waypoint(15.0, 10.0, 6.0)])
+    await v.start_mission()
+    if when == "mid_mission":
+        await wait_until(lambda: v.mission_progress().current >= 1, 30.0, clock=clock)
+    else:
+        await wait_until(lambda: v.mission_progress().finished, 60.0, clock=clock)
+    await v.return_to_launch()
+    _, max_alt, _ = await _fly_rtl_to_the_end(sim, clock, 60.0)
+    assert 9.3 < max_alt < 10.6
+    _assert_landed_at_home(sim)
+
+
+async def test_rtl_after_offboard_then_mission_first_leg_not_undone_by_a_setpoint_in_flight() -> None:
+    """start_mission() right after the offboard stream: the first leg is not overwritten."""
+    sim, v, clock = make_safe()
+    await airborne(sim, clock, alt=5.0)
+    await v.upload_mission([Waypoint(-10.0, 5.0, 6.0, acceptance_radius_m=1.0)])
+    await _offboard_to(v, clock, Setpoint(6.0, 0.0, -5.0, 0.0), 6.0)
+    await v.stop_offboard()
+    await v.start_mission()
+    await wait_until(lambda: v.mission_progress().finished, 40.0, clock=clock, what="mission done")
+    await v.return_to_launch()
+    await _fly_rtl_to_the_end(sim, clock, 60.0)
+    _assert_landed_at_home(sim)
+
+
+@pytest.mark.parametrize("failsafe", ["battery_critical", "battery_emergency", "pilot_rtl"])
+async def test_rtl_or_land_failsafe_during_a_setpoint_stream_is_not_undone(failsafe: str) -> None:
+    """An autopilot failsafe fires while setpoints are streaming (one still in its latency):
+    the failsafe's own command wins, the stream is told it lost control."""
+    sim, v, clock = make_safe()
+    await airborne(sim, clock, alt=5.0)
+    goal = Setpoint(10.0, 4.0, -5.0, 0.0)
+    await _offboard_to(v, clock, goal, 6.0)
+    if failsafe == "pilot_rtl":
+        sim.pilot_take_control(FlightMode.RETURN_TO_LAUNCH)
+    else:
+        sim.set_battery_fraction(0.06 if failsafe == "battery_critical" else 0.04)
+    await clock.sleep(0.05)
+    with pytest.raises(ModeChangedExternally):
+        await v.set_setpoint(goal)
+    p0 = sim.true_state().position_ned_m
+    await _fly_rtl_to_the_end(sim, clock, 60.0)
+    t = sim.true_state()
+    assert t.position_ned_m[2] == 0.0 and not t.armed
+    if failsafe == "battery_emergency":  # LAND where it is
+        assert math.dist(t.position_ned_m[:2], p0[:2]) < 1.0
+    else:
+        _assert_landed_at_home(sim)
+
+
+@pytest.mark.parametrize("mode", ["takeoff", "hold", "offboard", "mission", "rtl", "posctl"])
+async def test_land_from_every_mode_lands_in_place_and_disarms(mode: str) -> None:
+    sim, v, clock = make_safe()
+    await v.connect()
+    await v.arm()
+    await v.takeoff(5.0)
+    if mode == "takeoff":
+        await wait_until(lambda: sim.state().relative_altitude_m > 2.0, 20.0, clock=clock)
+    else:
+        await wait_until(lambda: sim.state().flight_mode == FlightMode.HOLD, 30.0, clock=clock)
+    if mode == "offboard":
+        await _offboard_to(v, clock, Setpoint(8.0, 0.0, -5.0, 0.0), 3.0)
+    elif mode == "mission":
+        await v.upload_mission([Waypoint(20.0, 0.0, 5.0)])
+        await v.start_mission()
+        await clock.sleep(3.0)
+    elif mode == "rtl":
+        await v.return_to_launch()
+        await clock.sleep(1.0)
+    elif mode == "posctl":
+        sim.pilot_take_control(FlightMode.POSCTL)
+        await clock.sleep(1.0)
+    expected = {"takeoff": FlightMode.TAKEOFF, "hold": FlightMode.HOLD, "offboard": FlightMode.OFFBOARD,
+                "mission": FlightMode.MISSION, "rtl": FlightMode.RETURN_TO_LAUNCH,
+                "posctl": FlightMode.POSCTL}[mode]
+    assert sim.state().flight_mode == expected
+    await v.land()
+    assert sim.state().flight_mode == FlightMode.LAND
+    t = sim.true_state()
+    # where a vehicle moving at speed v comes to rest braking at ~1.8 m/s^2
+    stop_m = math.hypot(*t.velocity_ned_mps[:2]) ** 2 / (2 * 1.8) + 0.5
+    await wait_until(lambda: not sim.state().armed, 30.0, clock=clock, what="landed, disarmed")
+    end = sim.true_state()
+    assert end.position_ned_m[2] == 0.0 and not end.in_air
+    assert math.dist(end.position_ned_m[:2], t.position_ned_m[:2]) < stop_m + 0.5
+    assert "Disarmed by landing" in [e.text for e in sim.events()]
