@@ -18,6 +18,13 @@ Per phase and detector configuration it prints
 Usage::
 
     python benchmarks/bench_regimes.py [--resolution 640x480] [--hover-s 5] [--configs ...]
+        [--textures vegetation soil snow grass] [--camera wide|narrow] [--alt-m 5]
+        [--target-north-m 22] [--target-east-m 1.5] [--per-texture] [--light-gain 1]
+
+Rows are summed over the ground textures (``--per-texture`` also prints each one). The narrow
+camera (12 mm) sees the ground 6-13 m ahead from 5 m; use it closer in, e.g. ``--camera narrow
+--alt-m 3 --target-north-m 17.5 --target-east-m 0.3`` (hover 5.5 m short of the target, which is
+in view from the end of the cruise through the hover).
 
 Each ``--configs`` entry is a JSON object of DTDMIConfig overrides (``{"detector": "midbrain"}``
 picks another plugin). Regions use each config's defaults and no target prior.
@@ -48,14 +55,15 @@ DECEL_S = 2.0
 G = 9.81
 
 DEFAULT_CONFIGS = [
-    '{"ego_motion": "none"}',
-    '{"ego_motion": "phase"}',
-    '{"ego_motion": "homography"}',
-    '{"ego_motion": "homography", "centre_sigma_frac": 0}',
+    '{"preset": "field"}',
+    '{"preset": "default", "centre_sigma_frac": 0}',
+    '{"detector": "ft"}',
+    '{"detector": "mss"}',
 ]
+LENSES = {"wide": (2.8, (0.10, -0.03, 0.05)), "narrow": (12.0, (0.10, 0.03, 0.05))}
 
 
-def trajectory(hover_s: float):
+def trajectory(hover_s: float, alt_m: float = ALT_M):
     """Yield (phase, t_s, position_ned_m, attitude_q) at FPS."""
     n = int(round((CRUISE_S + DECEL_S + hover_s) * FPS))
     a = CRUISE_MPS / DECEL_S
@@ -76,7 +84,7 @@ def trajectory(hover_s: float):
             pitch = 0.3 * math.sin(2 * math.pi * 0.7 * u + 1.0)
             roll = 0.3 * math.sin(2 * math.pi * 0.5 * u)
         east = 0.02 * math.sin(2 * math.pi * 0.3 * t) if phase == "hover" else 0.0
-        yield phase, t, (north, east, -ALT_M), euler_to_quat(roll, pitch, 0.0)
+        yield phase, t, (north, east, -alt_m), euler_to_quat(roll, pitch, 0.0)
 
 
 @dataclass
@@ -122,46 +130,54 @@ def main() -> None:
     ap.add_argument("--margin-px", type=float, default=6.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--target-north-m", type=float, default=22.0,
-                    help="the hover point is 10.5 m north of home")
+                    help="the hover point is 12 m north of home")
+    ap.add_argument("--target-east-m", type=float, default=1.5)
+    ap.add_argument("--alt-m", type=float, default=ALT_M)
+    ap.add_argument("--camera", choices=sorted(LENSES), default="wide")
+    ap.add_argument("--textures", nargs="*", default=["vegetation"],
+                    choices=["vegetation", "soil", "snow", "grass"])
+    ap.add_argument("--per-texture", action="store_true")
+    ap.add_argument("--light-gain", type=float, default=1.0, help="scene lighting gain")
     ap.add_argument("--configs", nargs="*", default=DEFAULT_CONFIGS)
     a = ap.parse_args()
     cv2.setNumThreads(1)
     w, h = (int(v) for v in a.resolution.lower().split("x"))
+    focal_mm, lever = LENSES[a.camera]
     model = CameraModel.from_lens(
-        "wide", focal_length_mm=2.8, pixel_size_um=3.75 * 1280 / w, resolution_px=(w, h),
-        mount=CameraMount(pitch_deg=-30.0, lever_arm_m=(0.10, -0.03, 0.05)))
+        a.camera, focal_length_mm=focal_mm, pixel_size_um=3.75 * 1280 / w, resolution_px=(w, h),
+        mount=CameraMount(pitch_deg=-30.0, lever_arm_m=lever))
     target = TargetConfig(length_m=0.40, width_m=0.25, height_m=0.15, color_bgr=(30, 40, 210))
-    sim = SimulationConfig(seed=a.seed, target_north_m=a.target_north_m, target_east_m=1.5,
-                           target_yaw_deg=20.0, noise_sigma=2.0, frame_rate_hz=FPS)
-    world = SyntheticWorld(sim, target, seed=a.seed)
-    empty = SyntheticWorld(sim.model_copy(update={"target_north_m": -30.0}), target, seed=a.seed)
-    dets = {spec: (make_detector(spec), make_detector(spec)) for spec in a.configs}
-    tallies = {(spec, ph): Tally() for spec in a.configs for ph in ("cruise", "decel", "hover")}
+    phases = ("cruise", "decel", "hover")
+    tallies = {(spec, ph): Tally() for spec in a.configs for ph in phases}
+    per_tex = {(tex, spec, ph): Tally() for tex in a.textures for spec in a.configs
+               for ph in phases}
     t_start = time.perf_counter()
-    for i, (phase, _t, pos, q) in enumerate(trajectory(a.hover_s)):
-        stamp = int(1e9 + i * 1e9 / FPS)
-        img, truth = world.render(model, pos, q, stamp)
-        img_free, _ = empty.render(model, pos, q, stamp)
-        for spec, (det, det_free) in dets.items():
-            tal = tallies[(spec, phase)]
-            t0 = time.perf_counter()
-            res = det.detect(Frame(img, stamp, "wide", i))
-            tal.ms.append((time.perf_counter() - t0) * 1e3)
-            res_free = det_free.detect(Frame(img_free, stamp, "wide", i))
-            tal.free_frames += 1
-            tal.free_dets += len(res_free.detections)
-            if truth.target_visible:
-                tal.visible += 1
-                hits = [on_target(d.center_px, truth.target_polygon_px, a.margin_px)
-                        for d in res.detections]
-                tal.best_hits += int(bool(hits) and hits[0])
-                tal.any_hits += int(any(hits))
-                tal.peak_ratio.append(peak_ratio(res.saliency, truth.target_polygon_px,
-                                                 a.margin_px))
-    print(f"# bench_regimes: {w}x{h} wide camera, cruise {CRUISE_S:g} s at {CRUISE_MPS:g} m/s, "
-          f"decel {DECEL_S:g} s, hover {a.hover_s:g} s, {FPS:g} fps "
+    for tex in a.textures:
+        sim = SimulationConfig(seed=a.seed, target_north_m=a.target_north_m,
+                               target_east_m=a.target_east_m, target_yaw_deg=20.0,
+                               noise_sigma=2.0, frame_rate_hz=FPS, ground_texture=tex,
+                               light_gain=a.light_gain)
+        world = SyntheticWorld(sim, target, seed=a.seed)
+        empty = SyntheticWorld(sim.model_copy(update={"target_north_m": -30.0}), target,
+                               seed=a.seed)
+        dets = {spec: (make_detector(spec), make_detector(spec)) for spec in a.configs}
+        run_texture(a, model, world, empty, dets, tallies, per_tex, tex)
+    print(f"# bench_regimes: {w}x{h} {a.camera} camera at {a.alt_m:g} m, cruise {CRUISE_S:g} s "
+          f"at {CRUISE_MPS:g} m/s, decel {DECEL_S:g} s, hover {a.hover_s:g} s, {FPS:g} fps, "
+          f"textures {','.join(a.textures)}, light gain {a.light_gain:g} "
           f"({time.perf_counter() - t_start:.0f} s)")
-    print(f"# target {a.target_north_m:g} m north of home (hover point 10.5 m north)")
+    hover_north_m = CRUISE_MPS * CRUISE_S + 0.5 * CRUISE_MPS * DECEL_S
+    print(f"# target {a.target_north_m:g} m north, {a.target_east_m:g} m east of home "
+          f"(hover point {hover_north_m:g} m north)")
+    print_table(tallies)
+    if a.per_texture:
+        for tex in a.textures:
+            print(f"\n## {tex}")
+            print_table({(spec, ph): per_tex[(tex, spec, ph)] for spec in a.configs
+                         for ph in phases})
+
+
+def print_table(tallies: dict) -> None:
     print("| config | phase | visible | det rate | any | FP/frame | peak ratio | ms median |")
     print("|---|---|---|---|---|---|---|---|")
     for (spec, ph), tal in tallies.items():
@@ -171,6 +187,36 @@ def main() -> None:
         pr = np.median(tal.peak_ratio) if tal.peak_ratio else float("nan")
         print(f"| `{spec}` | {ph} | {tal.visible} | {rate:.2f} | {anyr:.2f} | {fp:.2f} | "
               f"{pr:.2f} | {np.median(tal.ms):.1f} |")
+
+
+def run_texture(a, model, world, empty, dets, tallies, per_tex, tex) -> None:
+    """Fly the trajectory over one ground texture, tallying every detector configuration."""
+    cam = model.camera_id
+    for i, (phase, _t, pos, q) in enumerate(trajectory(a.hover_s, a.alt_m)):
+        stamp = int(1e9 + i * 1e9 / FPS)
+        img, truth = world.render(model, pos, q, stamp)
+        img_free, _ = empty.render(model, pos, q, stamp)
+        for spec, (det, det_free) in dets.items():
+            t0 = time.perf_counter()
+            res = det.detect(Frame(img, stamp, cam, i))
+            ms = (time.perf_counter() - t0) * 1e3
+            res_free = det_free.detect(Frame(img_free, stamp, cam, i))
+            hit_best = hit_any = False
+            ratio = None
+            if truth.target_visible:
+                hits = [on_target(d.center_px, truth.target_polygon_px, a.margin_px)
+                        for d in res.detections]
+                hit_best, hit_any = bool(hits) and hits[0], any(hits)
+                ratio = peak_ratio(res.saliency, truth.target_polygon_px, a.margin_px)
+            for tal in (tallies[(spec, phase)], per_tex[(tex, spec, phase)]):
+                tal.ms.append(ms)
+                tal.free_frames += 1
+                tal.free_dets += len(res_free.detections)
+                if truth.target_visible:
+                    tal.visible += 1
+                    tal.best_hits += int(hit_best)
+                    tal.any_hits += int(hit_any)
+                    tal.peak_ratio.append(ratio)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,10 @@
   scales by Eq. (14), map = S / max S). Reproduces the paper's method; near-binary maps.
 - ``default``: measured improvements (docs/paper_choices.md, "DTDMI"): per-scale normalisation
   and dynamic-range compression of S_M, Gaussian centre weight for the spatial cue, smoothing.
+- ``field``: a target static on the ground seen from a moving UAV (docs/paper_choices.md,
+  "field preset"): S_s in Reinhard's l-alpha-beta (chromatic distances), Eq. (2) per colour
+  bin, a spatial-compactness cue instead of the centre weighting of Eqs. (3)-(5), absolute
+  scale, and Eq. (15) as ``S_s x (1 + gain x S_M)`` so the dynamic map boosts, not gates.
 
 Every preset-dependent knob is a config field whose ``None`` means "as the preset says".
 
@@ -35,7 +39,7 @@ from eaglemission.types import Frame, Saliency
 class DTDMIConfig(DetectorConfig):
     """Parameters of the DTDMI detector (see docs/dtdmi.md)."""
 
-    preset: Literal["literal", "default"] = "default"
+    preset: Literal["literal", "default", "field"] = "default"
     # -- dynamic part (Eqs. 7-14)
     tau_s: float = Field(0.1, gt=0, le=60, description="delay-unit time constant, Eqs. (8)-(9)")
     scales: tuple[float, ...] = Field((1.0, 0.5, 0.25), min_length=1, max_length=6,
@@ -56,7 +60,20 @@ class DTDMIConfig(DetectorConfig):
     use_dynamic: bool = True
     # -- preset-dependent (None: as the preset says)
     spatial_weight: Literal["inverse_square", "gaussian"] | None = None
-    colour_space: Literal["lms", "log_lms"] | None = None
+    colour_space: Literal["lms", "log_lms", "lalphabeta"] | None = None
+    luminance_weight: float | None = Field(None, ge=0, le=1, description=(
+        "weight of l (log luminance) in lalphabeta distances; 0: chromatic contrast only"))
+    spread_sigma_frac: float | None = Field(None, ge=0, le=1, description=(
+        "> 0: spatial-compactness cue (spread / image diagonal at exp(-1)) instead of the "
+        "Eqs. (3)-(5) centre weighting, absolute contrast (field preset); 0: Eqs. (3)-(5)"))
+    contrast_level: Literal["bin", "cluster"] | None = Field(None, description=(
+        "with spread_sigma_frac > 0: Eq. (2) per colour bin against the clusters, or per "
+        "cluster as printed"))
+    spread_pool: bool | None = Field(None, description=(
+        "distribution cue: pool each colour bin with its 26 neighbouring bins"))
+    fusion: Literal["product", "boost"] | None = Field(None, description=(
+        "Eq. (15): product S_s x S_M (as printed) or boost S_s x (1 + dynamic_gain x S_M)"))
+    dynamic_gain: float | None = Field(None, ge=0, le=100, description="gain of S_M in boost")
     normalize_scales: bool | None = None
     dynamic_exponent: float | None = Field(None, gt=0, le=1)
     static_exponent: float | None = Field(None, ge=0, le=4)
@@ -93,11 +110,25 @@ class Resolved:
     centre_sigma_frac: float
     output_scale: str
     saturation: float
+    luminance_weight: float = 1.0
+    spread_sigma_frac: float = 0.0
+    contrast_level: str = "bin"
+    spread_pool: bool = True
+    fusion: str = "product"
+    dynamic_gain: float = 0.0
 
+
+#: field preset: S_s (chromatic l-alpha-beta units) mapped to 0.5; T = 120/255 then needs
+#: S > 0.89 x this (docs/paper_choices.md, "field preset").
+FIELD_SATURATION = 0.3
+FIELD_GAIN = 1.0
 
 PRESETS: dict[str, Resolved] = {
     "literal": Resolved("inverse_square", "lms", False, 1.0, 1.0, 0.0, 0.0, "frame_max", 1.0),
     "default": Resolved("inverse_square", "lms", False, 0.25, 0.5, 0.02, 0.25, "absolute", 0.5),
+    "field": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.001, 0.0, "absolute",
+                      FIELD_SATURATION, luminance_weight=0.0, spread_sigma_frac=0.1,
+                      contrast_level="bin", fusion="boost", dynamic_gain=FIELD_GAIN),
 }
 
 
@@ -118,10 +149,15 @@ def smooth_mapped(s: np.ndarray, sigma_px: float, out_hw: tuple[int, int],
     """
     f = max(1, int(sigma_px / 4))
     h, w = s.shape
-    small = cv2.resize(s, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
-    small = cv2.GaussianBlur(small, (0, 0), sigma_px / f)
+    if f > 1:
+        small = cv2.resize(s, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
+    else:
+        small = s  # small sigma (field preset): blur in place at full resolution
+    small = cv2.GaussianBlur(small, (0, 0), sigma_px / f, dst=small if f == 1 else None)
     mapped = np.empty_like(small)
     to_unit(small, None, mapped)
+    if mapped.shape == (out_hw[0], out_hw[1]):
+        return mapped
     return cv2.resize(mapped, (out_hw[1], out_hw[0]), interpolation=cv2.INTER_LINEAR)
 
 
@@ -144,7 +180,9 @@ class DTDMIEngine:
         self.static = ClusterStatic(StaticParams(
             clusters=cfg.clusters, colour_space=self.r.colour_space,
             spatial_weight=self.r.spatial_weight, window_s=cfg.window_s,
-            kmeans_weight=cfg.kmeans_weight, backend=cfg.backend))
+            kmeans_weight=cfg.kmeans_weight, backend=cfg.backend,
+            luminance_weight=self.r.luminance_weight, spread_sigma_frac=self.r.spread_sigma_frac,
+            contrast_level=self.r.contrast_level, spread_pool=self.r.spread_pool))
         self.dynamic = MidbrainDynamic(DynamicParams(
             scales=tuple(cfg.scales), tau_s=cfg.tau_s, tensor_radius_px=cfg.tensor_radius_px,
             ego_motion=cfg.ego_motion, ego_motion_width_px=cfg.ego_motion_width_px,
@@ -167,6 +205,7 @@ class DTDMIEngine:
         self._grey = np.zeros(shape, np.float32)
         self._hist = np.zeros(NBINS, np.float64)
         self._whist = np.zeros(NBINS, np.float64)
+        self._mom = np.zeros((NBINS, 4), np.float64)
         self._dummy = np.zeros((1, 1), np.float32)
         rows = np.arange(h)[:, None]
         cols = np.arange(w)[None, :]
@@ -177,15 +216,24 @@ class DTDMIEngine:
 
     # -- parts ----------------------------------------------------------------------------------
     def _static_lut(self, work: np.ndarray, timestamp_ns: int) -> np.ndarray:
-        if self.numba:
-            wgrid = self.static.weight_grid(self._shape)
-            self._k.sampled_hist(work, self.static.p.sample_step_px, wgrid, self._hist,
-                                 self._whist)
-            hist, whist = self._hist, self._whist
+        if self.static.field:  # field preset: compactness x per-bin contrast, absolute
+            if self.numba:
+                self._k.sampled_moments(work, self.static.p.sample_step_px, self._hist, self._mom)
+                hist, mom = self._hist, self._mom
+            else:
+                self._idx[...] = quantize_bgr(work)
+                hist, mom = self.static.moments(self._idx)
+            lut = self.static.bin_saliency_field(hist, mom, self._shape)
         else:
-            self._idx[...] = quantize_bgr(work)
-            hist, whist = self.static.histograms(self._idx)
-        lut = self.static.bin_saliency_from_hist(hist, whist, timestamp_ns)  # Eqs. (2)-(6)
+            if self.numba:
+                wgrid = self.static.weight_grid(self._shape)
+                self._k.sampled_hist(work, self.static.p.sample_step_px, wgrid, self._hist,
+                                     self._whist)
+                hist, whist = self._hist, self._whist
+            else:
+                self._idx[...] = quantize_bgr(work)
+                hist, whist = self.static.histograms(self._idx)
+            lut = self.static.bin_saliency_from_hist(hist, whist, timestamp_ns)  # Eqs. (2)-(6)
         if self.r.static_exponent != 1.0:
             lut = np.power(lut, np.float32(self.r.static_exponent))
         return lut
@@ -228,14 +276,22 @@ class DTDMIEngine:
                                        interpolation=cv2.INTER_LINEAR)
             cv2.resize(base, (w, h), dst=self._ups[0], interpolation=cv2.INTER_LINEAR)
         inv0 = self._compress(tops[0]) if full is not None else 1.0
-        use_static = lut is not None
-        use_centre = self.r.centre_sigma_frac > 0
+        boost = self.r.fusion == "boost" and lut is not None
+        use_static = lut is not None and not boost
+        # with boost, the centre weight multiplies the whole S (after the boost), not S_M alone
+        use_centre = self.r.centre_sigma_frac > 0 and not boost
         n = len(maps)
         if self.numba:
-            return float(self._k.combine(
+            top = float(self._k.combine(
                 full if full is not None else self._dummy, np.float32(inv0), float(gamma),
                 full is not None, self._ups, n, lut if use_static else np.zeros(1, np.float32),
                 work, use_static, self._centre, use_centre, self._out))
+            if boost:  # field preset's Eq. (15): S_s x (1 + gain x S_M)
+                top = float(self._k.boost(work, lut, float(self.r.dynamic_gain), self._out))
+                if self.r.centre_sigma_frac > 0:
+                    np.multiply(self._out, self._centre, out=self._out)
+                    top = float(self._out.max())
+            return top
         acc = self._out
         acc[...] = 0.0
         if full is not None:
@@ -248,6 +304,10 @@ class DTDMIEngine:
             acc *= lut[self._idx]  # Eq. (15)
         if use_centre:
             acc *= self._centre
+        if boost:
+            acc[...] = eq.boosted_saliency(lut[self._idx], acc, self.r.dynamic_gain)
+            if self.r.centre_sigma_frac > 0:
+                acc *= self._centre
         return float(acc.max())
 
     # -- whole frame ----------------------------------------------------------------------------

@@ -551,3 +551,131 @@ def final_saliency(static: FloatArray, dynamic: FloatArray) -> FloatArray:
     .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (15).
     """
     return np.asarray(static) * np.asarray(dynamic)
+
+
+# -- field preset: named deviations from [1] (docs/paper_choices.md, "field preset") -------------
+#: Reinhard et al. [4]: log10 LMS -> l-alpha-beta (rows l, alpha, beta). The rows are
+#: orthonormal, so distances in l-alpha-beta equal distances in log10 LMS.
+LOG_LMS_TO_LAB = np.diag([1 / np.sqrt(3), 1 / np.sqrt(6), 1 / np.sqrt(2)]) @ np.array(
+    [[1.0, 1.0, 1.0], [1.0, 1.0, -2.0], [1.0, -1.0, 0.0]])
+
+
+def srgb_to_linear(rgb: FloatArray) -> FloatArray:
+    """sRGB-encoded values in [0, 1] -> linear RGB (IEC 61966-2-1 decoding).
+
+    Eq. (1) of [1] is Reinhard's RGB -> LMS matrix [4], which expects linear RGB; camera frames
+    are gamma-encoded.
+    """
+    x = np.asarray(rgb, dtype=np.float64)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def lms_to_lalphabeta(lms: FloatArray, floor: float = 1e-4) -> FloatArray:
+    """LMS (Eq. (1) of [1]) -> Reinhard's opponent space l-alpha-beta [4] (log10, then rotate).
+
+    ``l`` is log luminance, ``alpha`` yellow-blue, ``beta`` red-green. ``floor`` keeps log10
+    finite for black.
+
+    References
+    ----------
+    .. [4] E. Reinhard, M. Ashikhmin, B. Gooch, P. Shirley, "Color Transfer between Images",
+       IEEE CG&A 21(5), 2001. DOI: 10.1109/38.946629.
+    """
+    return np.log10(np.maximum(np.asarray(lms, np.float64), floor)) @ LOG_LMS_TO_LAB.T
+
+
+def bin_contrast_cue(features: FloatArray, centres: FloatArray, counts: FloatArray) -> FloatArray:
+    """Eq. (2) of [1] evaluated for each colour bin rather than each cluster (field preset).
+
+    ``lambda_c(b) = sum_k (n_k / N) ||f_b - mu_k||``: the bin's own colour against the K cluster
+    means, so a small target whose colour shares a cluster with common colours keeps its own
+    contrast (the histogram contrast of Cheng et al., with the clusters as the histogram). For
+    a bin at a cluster mean this is Eq. (2) of that cluster. Not normalised: the value is in
+    the feature space's units, so a frame without a distinct colour stays low.
+
+    Parameters
+    ----------
+    features : ndarray of shape (B, C)
+    centres : ndarray of shape (K, C)
+    counts : ndarray of shape (K,)
+
+    Returns
+    -------
+    ndarray of shape (B,)
+    """
+    counts = np.asarray(counts, np.float64)
+    total = counts.sum()
+    if total <= 0:
+        return np.zeros(len(features))
+    d = np.linalg.norm(np.asarray(features)[:, None, :] - np.asarray(centres)[None], axis=2)
+    return d @ (counts / total)
+
+
+def distribution_cue(moments: FloatArray, counts: FloatArray, diag_px: float,
+                     sigma_frac: float) -> FloatArray:
+    """Spatial compactness of each colour bin (field preset; replaces Eqs. (3)-(5) of [1]).
+
+    ``exp(-(spread_b / (sigma_frac * diag))^2)`` where ``spread_b`` is the RMS distance of the
+    bin's pixels to their centroid (Perazzi et al.'s "element distribution"): a colour spread
+    over the whole image (ground texture, sky) is background, a compact one (an object) keeps
+    its contrast. Bins without pixels get 0 (no evidence of compactness).
+
+    Parameters
+    ----------
+    moments : ndarray of shape (B, 4)
+        Per bin: sums of column, row, column^2, row^2 over its (sampled) pixels.
+    counts : ndarray of shape (B,)
+        Pixels per bin.
+    diag_px : float
+        Image diagonal (same pixel units as the moments).
+    sigma_frac : float
+        Spread (fraction of the diagonal) at which the cue falls to exp(-1).
+
+    Returns
+    -------
+    ndarray of shape (B,), in [0, 1]
+    """
+    n = np.asarray(counts, np.float64)
+    m = np.asarray(moments, np.float64)
+    nn = np.maximum(n, 1.0)
+    var = (m[:, 2] / nn - (m[:, 0] / nn) ** 2) + (m[:, 3] / nn - (m[:, 1] / nn) ** 2)
+    spread = np.sqrt(np.maximum(var, 0.0)) / (sigma_frac * diag_px)
+    return np.where(n > 0, np.exp(-spread * spread), 0.0)
+
+
+def boosted_saliency(static: FloatArray, dynamic: FloatArray, gain: float) -> FloatArray:
+    """Eq. (15) of [1] with the dynamic map boosting instead of gating (field preset).
+
+    ``S = S_s x (1 + gain x S_M)``: a static target is found by its colour alone (``S_M = 0``
+    leaves ``S_s``), one that moves relative to its background gains from the dynamic map.
+    """
+    return np.asarray(static) * (1.0 + gain * np.asarray(dynamic))
+
+
+def pool_colour_bins(values: FloatArray, bits: int = 4) -> FloatArray:
+    """Sum of each colour bin and its 26 neighbours in the (2^bits)^3 histogram grid (field).
+
+    The distribution cue pools a bin's pixels with those of adjacent colours (a box version of
+    Perazzi et al.'s colour-similarity weighting), so a bin that holds a few pixels of a
+    widespread colour (noise on the horizon, a shaded edge) is not taken as compact.
+
+    Parameters
+    ----------
+    values : ndarray of shape (B,) or (B, C), B = 2^(3 bits), bin index ``b << 2 bits | g << bits | r``
+
+    Returns
+    -------
+    ndarray of the same shape
+    """
+    n = 1 << bits
+    v = np.asarray(values, np.float64)
+    grid = v.reshape((n, n, n) + v.shape[1:])
+    for axis in range(3):
+        out = grid.copy()
+        lo = [slice(None)] * grid.ndim
+        hi = [slice(None)] * grid.ndim
+        lo[axis], hi[axis] = slice(0, n - 1), slice(1, n)
+        out[tuple(lo)] += grid[tuple(hi)]
+        out[tuple(hi)] += grid[tuple(lo)]
+        grid = out
+    return grid.reshape(v.shape)

@@ -150,6 +150,44 @@ def sampled_hist(bgr, step, wgrid, hist, whist):  # pragma: no cover - jitted
             whist[i] += wgrid[r // step, c // step]
 
 
+@njit(cache=True, nogil=True)
+def sampled_moments(bgr, step, hist, mom):  # pragma: no cover - jitted
+    """Counts and spatial moments (sum of column, row, column^2, row^2) of the 12-bit colour
+    bins over the pixels on a ``step`` grid into ``hist`` (B,) / ``mom`` (B, 4), zeroed here
+    (field preset: :func:`.equations.distribution_cue`)."""
+    hist[:] = 0.0
+    mom[:, :] = 0.0
+    h, w = bgr.shape[0], bgr.shape[1]
+    for r in range(0, h, step):
+        fr = float(r)
+        for c in range(0, w, step):
+            i = ((np.uint16(bgr[r, c, 0]) >> 4) << 8) | ((np.uint16(bgr[r, c, 1]) >> 4) << 4) \
+                | (np.uint16(bgr[r, c, 2]) >> 4)
+            fc = float(c)
+            hist[i] += 1.0
+            mom[i, 0] += fc
+            mom[i, 1] += fr
+            mom[i, 2] += fc * fc
+            mom[i, 3] += fr * fr
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def boost(bgr, lut, gain, out):  # pragma: no cover - jitted
+    """``out = lut[bin(bgr)] * (1 + gain * out)`` in place (field preset's Eq. (15)); returns
+    the maximum of ``out``."""
+    h, w = out.shape
+    top = np.float32(0.0)
+    g = np.float32(gain)
+    for r in range(h):
+        for c in range(w):
+            i = ((np.uint16(bgr[r, c, 0]) >> 4) << 8) | ((np.uint16(bgr[r, c, 1]) >> 4) << 4) \
+                | (np.uint16(bgr[r, c, 2]) >> 4)
+            v = lut[i] * (np.float32(1.0) + g * out[r, c])
+            out[r, c] = v
+            top = max(top, v)
+    return top
+
+
 @njit(cache=True, nogil=True, fastmath=True)
 def paint_static(bgr, lut, centre, use_centre, out):  # pragma: no cover - jitted
     """``out = lut[bin(bgr)] (* centre)``: the static map alone; returns its maximum."""

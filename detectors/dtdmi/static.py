@@ -39,8 +39,19 @@ def _bin_colours_bgr() -> NDArray[np.float64]:
 _BIN_BGR = _bin_colours_bgr()
 
 
-def bin_features(colour_space: str) -> NDArray[np.float64]:
-    """(4096, 3) clustering features of the bins: LMS by Eq. (1), or log10 LMS (Reinhard)."""
+def bin_features(colour_space: str, luminance_weight: float = 1.0) -> NDArray[np.float64]:
+    """(4096, 3) clustering features of the bins.
+
+    ``lms``: Eq. (1) on the sRGB values; ``log_lms``: log10 of that (Reinhard);
+    ``lalphabeta`` (field preset): sRGB decoded to linear RGB, Eq. (1), then Reinhard's
+    l-alpha-beta, with the ``l`` (log luminance) axis scaled by ``luminance_weight`` (0: the
+    distances are chromatic only, so shading and shadows do not count as contrast).
+    """
+    if colour_space == "lalphabeta":
+        lms = eq.rgb_to_lms(eq.srgb_to_linear(_BIN_BGR[:, ::-1]))
+        lab = eq.lms_to_lalphabeta(lms)
+        lab[:, 0] *= luminance_weight
+        return lab
     lms = eq.rgb_to_lms(_BIN_BGR[:, ::-1])  # Eq. (1) wants R, G, B
     if colour_space == "log_lms":
         return np.log10(np.maximum(lms, 1e-3))
@@ -97,6 +108,11 @@ class StaticParams:
     kmeans_iters: int = 3
     kmeans_weight: str = "count"  # "count" | "sqrt": weight of a colour bin in the k-means
     backend: str = "numpy"  # "numpy" | "numba" (same results)
+    # field preset (docs/paper_choices.md, "field preset"):
+    luminance_weight: float = 1.0  # weight of l in "lalphabeta" distances
+    spread_sigma_frac: float = 0.0  # > 0: distribution cue instead of Eqs. (3)-(5)
+    contrast_level: str = "bin"  # with the distribution cue: "bin" | "cluster" (Eq. (2))
+    spread_pool: bool = True  # pool each bin's moments with its 26 neighbouring colours
 
 
 class ClusterStatic:
@@ -104,7 +120,7 @@ class ClusterStatic:
 
     def __init__(self, params: StaticParams) -> None:
         self.p = params
-        self._features = bin_features(params.colour_space)
+        self._features = bin_features(params.colour_space, params.luminance_weight)
         self._lut = np.zeros(NBINS, np.intp)
         self._k = None
         if params.backend == "numba":
@@ -187,3 +203,58 @@ class ClusterStatic:
             d2 = ((self._features[:, None, :] - self._centres[None]) ** 2).sum(axis=2)
             lut = np.argmin(d2, axis=1)
         return s_cluster[lut].astype(np.float32)
+
+    # -- field preset ---------------------------------------------------------------------------
+    @property
+    def field(self) -> bool:
+        """Whether the distribution cue replaces Eqs. (3)-(5) (the ``field`` preset)."""
+        return self.p.spread_sigma_frac > 0
+
+    def moments(self, idx: NDArray[np.uint16]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Bin counts (B,) and spatial moments (B, 4) over the sampled pixels (plain numpy)."""
+        s = self.p.sample_step_px
+        h, w = idx.shape
+        sub = idx[::s, ::s].ravel()
+        rows, cols = np.mgrid[0:h:s, 0:w:s]
+        r = rows.ravel().astype(np.float64)
+        c = cols.ravel().astype(np.float64)
+        hist = np.bincount(sub, minlength=NBINS).astype(np.float64)
+        mom = np.stack([np.bincount(sub, weights=v, minlength=NBINS)
+                        for v in (c, r, c * c, r * r)], axis=1)
+        return hist, mom
+
+    def bin_saliency_field(self, hist: NDArray[np.float64], mom: NDArray[np.float64],
+                           shape: tuple[int, int]) -> NDArray[np.float32]:
+        """S_s of each colour bin, field preset: contrast x distribution, absolute scale.
+
+        The clustering is the same warm-started weighted k-means as :meth:`bin_saliency_from_hist`;
+        the contrast is Eq. (2) per bin (:func:`.equations.bin_contrast_cue`) or per cluster
+        (``contrast_level="cluster"``), not normalised; the spatial cue is the bin's spatial
+        compactness (:func:`.equations.distribution_cue`) instead of the centre weighting of
+        Eqs. (3)-(5); Eq. (6) is their product.
+        """
+        occ = np.flatnonzero(hist)
+        x, n_occ = self._features[occ], hist[occ]
+        w = np.sqrt(n_occ) if self.p.kmeans_weight == "sqrt" else n_occ
+        k = min(self.p.clusters, len(occ))
+        if self._centres is None or len(self._centres) != k:
+            self._centres = kmeanspp_init(x, w, k)
+            iters = self.p.kmeans_iters_init
+        else:
+            iters = self.p.kmeans_iters
+        if self._k is not None:
+            self._centres = np.ascontiguousarray(self._centres, dtype=np.float64)
+            lab = self._k.weighted_kmeans(np.ascontiguousarray(x), w, self._centres, iters)
+        else:
+            self._centres, lab = weighted_kmeans(x, w, self._centres, iters)
+        counts = np.bincount(lab, weights=n_occ, minlength=k)
+        if self.p.contrast_level == "cluster":
+            d2 = ((self._features[:, None, :] - self._centres[None]) ** 2).sum(axis=2)
+            contrast = eq.contrast_cue(self._centres, counts)[np.argmin(d2, axis=1)]
+        else:
+            contrast = eq.bin_contrast_cue(self._features, self._centres, counts)
+        diag = float(np.hypot(*shape))
+        if self.p.spread_pool:
+            mom, hist = eq.pool_colour_bins(mom), eq.pool_colour_bins(hist)
+        spatial = eq.distribution_cue(mom, hist, diag, self.p.spread_sigma_frac)
+        return eq.static_saliency(spatial, contrast).astype(np.float32)  # Eq. (6)
