@@ -378,11 +378,14 @@ class CornerPoseEstimator:
             return None
         good_cost = 0.5 * 8 * self.good_fit_px ** 2 / 2  # least_squares' cost at ~good_fit_px
 
+        jac = getattr(residual, "jac", None)
+
         def polish(x0: NDArray[np.float64], nfev: int) -> Any:
+            if jac is not None:
+                return _lm_fit(residual, jac, x0, nfev, xtol=1e-7, ftol=1e-6)
             try:
-                sol = least_squares(residual, x0, jac=getattr(residual, "jac", "2-point"),
-                                    method="lm", diff_step=1e-6, xtol=1e-7, ftol=1e-6,
-                                    max_nfev=nfev)
+                sol = least_squares(residual, x0, jac="2-point", method="lm", diff_step=1e-6,
+                                    xtol=1e-7, ftol=1e-6, max_nfev=nfev)
             except (ValueError, np.linalg.LinAlgError):
                 return None
             return sol if np.isfinite(sol.x).all() else None
@@ -480,6 +483,42 @@ def _box_kernel() -> Any:
             kern = None
         _BOX_KERNEL.append(kern)
     return _BOX_KERNEL[0]
+
+
+@dataclass(frozen=True)
+class _LMResult:
+    """The part of scipy's ``OptimizeResult`` the box fit reads."""
+
+    x: NDArray[np.float64]
+    fun: NDArray[np.float64]
+    cost: float
+
+
+def _lm_fit(fun: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+            jac: Callable[[NDArray[np.float64]], NDArray[np.float64]], x0: NDArray[np.float64],
+            max_nfev: int, *, xtol: float, ftol: float, gtol: float = 1e-8) -> _LMResult | None:
+    """Levenberg-Marquardt with an analytic Jacobian: the same MINPACK ``lmder`` call (same
+    tolerances, ``factor=100``, scaling from the Jacobian) as
+    ``least_squares(method="lm", jac=jac)`` in scipy >= 1.16, through ``scipy.optimize.leastsq``
+    (~1/3 of the per-call overhead: no VectorFunction wrappers). Same iterates and result; None
+    where ``least_squares`` raises (residuals not finite at ``x0``) or the result is not finite.
+    """
+    from scipy.optimize import leastsq
+
+    x0 = np.atleast_1d(np.asarray(x0, dtype=np.float64)).copy()
+    f0 = np.asarray(fun(x0), dtype=np.float64)
+    if not np.isfinite(f0).all():
+        return None
+    try:
+        out = leastsq(fun, x0, Dfun=jac, full_output=True, col_deriv=False, ftol=ftol,
+                      xtol=xtol, gtol=gtol, maxfev=max_nfev, factor=100.0, diag=None)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    x, info = np.asarray(out[0], dtype=np.float64), out[2]
+    if not np.isfinite(x).all():
+        return None
+    f = np.asarray(info["fvec"], dtype=np.float64)
+    return _LMResult(x, f, float(0.5 * np.dot(f, f)))
 
 
 def _region_residual(

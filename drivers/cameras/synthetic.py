@@ -170,6 +170,7 @@ def make_synthetic_rig(config: MissionFile, pose_source: PoseSource, clock: Cloc
     if world is None:
         world = SyntheticWorld(config.simulation, config.target,
                                extent_m=min(1000.0, geofence_extent_m(config)))
+        world.warm_up()  # texture copies for the fast ground path, before the flight starts
     cams = {}
     for cid in ("wide", "narrow"):
         section = getattr(config.cameras, cid)
