@@ -372,6 +372,16 @@ class DTDMIDetector(SaliencyDetector):
     def __init__(self, config: DTDMIConfig | None = None, **context: Any) -> None:
         super().__init__(config, **context)
         self.engine = DTDMIEngine(self.config)
+        if self.engine.numba:
+            self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compile (or load from numba's cache) every kernel now, not on the first real frame."""
+        rng = np.random.RandomState(0)
+        for k in range(2):
+            img = rng.randint(0, 256, (32, 32, 3)).astype(np.uint8)
+            self.engine.saliency(img, 1_000_000_000 + k * 33_000_000)
+        self.engine.reset()
 
     def _reset(self) -> None:
         self.engine.reset()
