@@ -1,4 +1,4 @@
-"""Target estimation against the synthetic world (helper C's renderer, ground truth):
+"""Target estimation against the synthetic world (the synthetic renderer's ground truth):
 
 1. the bias of the paper's "MBR corners = top-face corners" and the region-model correction
    (narrow camera, the configured box, the mission's geometry), on perfect silhouettes with

@@ -1,4 +1,4 @@
-"""Fixtures for the estimator tests: the mission's cameras and target, and helper C's synthetic
+"""Fixtures for the estimator tests: the mission's cameras and target, and the synthetic
 world (built once per module: ~3 s)."""
 
 from __future__ import annotations

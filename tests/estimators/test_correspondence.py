@@ -29,7 +29,7 @@ def test_model_corner_order_matches_conventions():
 
 
 def test_world_top_corners_agree_with_our_model(mission, world):
-    """Helper C's ground truth and our model/conversion agree on the top-face corners."""
+    """The world's ground truth and our model/conversion agree on the top-face corners."""
     narrow = mission.cameras.narrow.to_model("narrow")
     pos, q = approach_pose(world.target_position_ned_m, 4.0, 30.0, 10.0)
     _, gt = world.render(narrow, pos, q, 10**9)

@@ -18,7 +18,7 @@ backend object (see :class:`VehicleBackend`) and a test class that inherits
 
 Backends: the simulated vehicle (test_contract_simulated.py, ManualClock: the whole suite runs
 in well under a second of wall time per test), the MAVSDK driver talking to the MAVLink
-emulator (test_contract_mavsdk.py, helper E), and a real PX4 SITL when ``EAGLEMISSION_PX4_URL``
+emulator (test_contract_mavsdk.py), and a real PX4 SITL when ``EAGLEMISSION_PX4_URL``
 is set (skipped otherwise).
 
 Every wait is bounded (``backend.wait``); timeouts are in the backend's clock seconds and sized
