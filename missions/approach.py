@@ -99,7 +99,7 @@ class ApproachConfig(BaseModel):
     narrow_miss_switch_s: float = Field(1.0, gt=0, description="fine approach: continue with "
                                         "the wide camera when the narrow one gives no fine "
                                         "estimate for this long")
-    min_estimate_range_m: float = Field(0.8, ge=0, description="estimates of a target closer "
+    min_estimate_range_m: float = Field(0.5, ge=0, description="estimates of a target closer "
                                         "than this to the camera are not used (it no longer "
                                         "fits the view; the filter holds the last position)")
     fallback_std_factor: float = Field(3.0, ge=1, description="weight of a coarse estimate "
@@ -122,6 +122,35 @@ class ApproachConfig(BaseModel):
         "`estimate` = the estimators' 3-D value, `hybrid` = ground beyond full_3d_range_m")
     full_3d_range_m: float = Field(1.6, gt=0, description="hybrid: closer than this, use the "
                                    "full 3-D PnP estimate")
+    plane_fit: bool = Field(True, description="replace a detection's position by the fit of "
+                            "the target's top face or box silhouette on the plane of its top "
+                            "(missions/silhouette.py; not in the paper)")
+    plane_fit_max_cost: float = Field(0.4, gt=0, description="final approach: refuse a "
+                                      "detection whose MBR side lengths no region model "
+                                      "explains (sum of |log ratio|)")
+    plane_fit_angular_std_deg: float = Field(1.0, gt=0, description="1-sigma angular error of "
+                                             "a plane-fit estimate (mount, attitude, pixels)")
+    grasp_hold_factor: float = Field(1.6, ge=1, description="grasp stability: every frame "
+                                     "within this x grasp_tolerance_m, their mean within it "
+                                     "(a hover in wind jitters by a few cm)")
+    colour_track: bool = Field(True, description="final approach: when the detector gives no "
+                               "usable region, take the region of the target's colour near "
+                               "the predicted pixel (needs target.color_bgr; not in the paper)")
+    size_range: bool = Field(True, description="final approach: fuse the range from the "
+                             "target's apparent size (plane fit) with the plane's range")
+    size_std_fraction: float = Field(0.02, gt=0, description="1-sigma relative error of the "
+                                     "range from apparent size (focal error, segmentation)")
+    altitude_std_m: float = Field(0.04, gt=0, description="1-sigma error of the vehicle's "
+                                  "altitude estimate (sets the plane's range error)")
+    tilt_compensation: bool = Field(True, description="place the tool point over the target "
+                                    "at the vehicle's current (low-passed) attitude: in wind the "
+                                    "vehicle leans and a level-attitude goal is off by cm")
+    grasp_max_speed_mps: float = Field(0.1, gt=0, description="grasp stability counts only "
+                                       "frames with the vehicle slower than this")
+    grasp_trim_gain_per_s: float = Field(0.5, ge=0, description="integral trim of the "
+                                         "setpoint at the grasp pose (steady wind offset); 0 = "
+                                         "off")
+    grasp_trim_max_m: float = Field(0.15, ge=0, description="largest trim")
     geofence_action: SafeAction = "return"
     camera_failure_action: SafeAction = "return"
     timeout_action: SafeAction = "return"

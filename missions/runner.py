@@ -47,6 +47,7 @@ from eaglemission.missions.approach import (
 )
 from eaglemission.missions.filter import TargetFilter
 from eaglemission.missions.log import MissionLog
+from eaglemission.missions.silhouette import PlaneFit, colour_blob, fit_on_top_plane
 
 from eaglemission import errors
 from eaglemission.config import MissionFile
@@ -57,6 +58,7 @@ from eaglemission.safety_geometry import inside_geofence
 from eaglemission.types import (
     Detection,
     DetectionResult,
+    EstimationFailed,
     FlightMode,
     Frame,
     TargetEstimate,
@@ -255,11 +257,13 @@ def colour_matches(image: np.ndarray, det: Detection, target_bgr: Any, tolerance
 
 def select_detection(result: DetectionResult, predicted_px: np.ndarray | None, width_px: int,
                      height_px: int, border_px: float, gate_px: float,
-                     plausible: Callable[[Detection], bool] | None = None) -> Detection | None:
+                     plausible: Callable[[Detection], bool] | None = None,
+                     allow_cut: bool = False) -> Detection | None:
     """The detection to use: the one nearest the predicted target pixel when there is a
-    prediction (within ``gate_px``), else the best-ranked; truncated ones and (with
-    ``plausible``) ones of an impossible size are skipped."""
-    dets = [d for d in result.detections if not touches_border(d, width_px, height_px, border_px)
+    prediction (within ``gate_px``), else the best-ranked; truncated ones (unless
+    ``allow_cut``) and (with ``plausible``) ones of an impossible size are skipped."""
+    dets = [d for d in result.detections
+            if (allow_cut or not touches_border(d, width_px, height_px, border_px))
             and (plausible is None or plausible(d))]
     if not dets:
         return None
@@ -367,6 +371,8 @@ class MissionRunner:
         self._at_standoff_since_ns: int | None = None
         self._approach_yaw: float | None = None
         self._grasp_count = 0
+        self._grasp_window: deque[tuple[float, float]] = deque(maxlen=64)
+        self._fit_hint: tuple[float, str] | None = None  # (yaw, region) of the last full view
         self._grasp_done = False
         self._last_target: tuple[float, float, float] | None = None
         self._expected_visible = True
@@ -374,6 +380,8 @@ class MissionRunner:
         self._offboard = False
         self._carrot: tuple[float, float, float] | None = None
         self._carrot_yaw = 0.0
+        self._trim: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._tool_off: tuple[float, float, float] | None = None
         self._route_s = 0.0
         self._route = [(w.north_m, w.east_m) for w in cfg.mission.route]
         self._route_len = gd.route_length_m(self._route)
@@ -437,6 +445,8 @@ class MissionRunner:
             self._at_standoff_since_ns = None
             self._fine_estimates = 0
             self._grasp_count = 0
+            self._grasp_window.clear()
+            self._fit_hint = None
         elif new is S.GRASP_READY:
             self.t_grasp_ready_s = t
             self._commands.put_nowait(("grasp", None))
@@ -542,8 +552,10 @@ class MissionRunner:
         gate_px = 0.25 * max(model.width_px, model.height_px)
         colour = self.cfg.target.color_bgr if self.p.colour_check else None
         prior = self._prior(cam_id)
+        close_phase = self.machine.state in (S.FINE_APPROACH, S.GRASP_READY)
+        allow_cut = close_phase and self.p.plane_fit and self._fit_hint is not None
 
-        def work() -> tuple[Detection | None, TargetEstimate | Any, float, int]:
+        def work() -> tuple[Detection | None, TargetEstimate | Any, float, int, bool]:
             t0 = time.perf_counter()
             result = detector.detect(frame, prior)
             det = select_detection(
@@ -551,22 +563,56 @@ class MissionRunner:
                 gate_px, lambda d: plausible_size(d, model, state, self.cfg.target,
                                                   *self.p.size_ratio_range)
                 and (colour is None or colour_matches(frame.image, d, colour,
-                                                      self.p.colour_tolerance)))
-            est: Any = None
-            if det is not None and estimator is not None and state is not None:
-                view = CameraView(model, state, frame.timestamp_ns)
-                est = estimator.estimate(det, view)
-                if not est and estimator is not self.coarse:
-                    # the fine estimator refused (e.g. reprojection error): keep tracking with
-                    # the coarse estimate of the same detection, with less weight
-                    failed = est
-                    est = self.coarse.estimate(det, view)
-                    if est:
-                        est = replace(est, std_m=est.std_m * self.p.fallback_std_factor,
-                                      source=f"fallback:{est.source} (fine failed: {failed})")
-            return det, est, (time.perf_counter() - t0) * 1e3, len(result.detections)
+                                                      self.p.colour_tolerance)),
+                allow_cut=allow_cut)
+            track = (close_phase and self.p.colour_track and colour is not None
+                     and predicted is not None and np.isfinite(predicted).all())
+            tracked = False
+            if det is None and track:
+                det = colour_blob(frame.image, colour, self.p.colour_tolerance, predicted,
+                                  camera_id=cam_id)
+                tracked = det is not None
+            est = self._estimate(det, estimator, model, state, frame, close_phase, tracked)
+            if track and not tracked and det is not None and not est:
+                # the detector's region does not fit the target: try its colour region
+                alt = colour_blob(frame.image, colour, self.p.colour_tolerance, predicted,
+                                  camera_id=cam_id)
+                alt_est = self._estimate(alt, estimator, model, state, frame, close_phase, True)
+                if alt_est:
+                    det, est, tracked = alt, alt_est, True
+            return det, est, (time.perf_counter() - t0) * 1e3, len(result.detections), tracked
 
-        det, est, ms, n_raw = await _run_blocking(work)
+        det, est, ms, n_raw, tracked = await _run_blocking(work)
+        self._use_perception(cam_id, frame, det, est, ms, n_raw, tracked, wall, state,
+                             estimator, model)
+
+    def _estimate(self, det: Detection | None, estimator: Any, model: CameraModel,
+                  state: VehicleState | None, frame: Frame, close_phase: bool,
+                  tracked: bool = False) -> Any:
+        """Estimate of one detection (worker thread): the state's estimator, the coarse one
+        when the fine one refuses, then the plane fit."""
+        est: Any = None
+        if det is None or estimator is None or state is None:
+            return est
+        view = CameraView(model, state, frame.timestamp_ns)
+        est = estimator.estimate(det, view)
+        if not est and estimator is not self.coarse:
+            # the fine estimator refused (e.g. reprojection error): keep tracking with
+            # the coarse estimate of the same detection, with less weight
+            failed = est
+            est = self.coarse.estimate(det, view)
+            if est:
+                est = replace(est, std_m=est.std_m * self.p.fallback_std_factor,
+                              source=f"fallback:{est.source} (fine failed: {failed})")
+        if est and self.p.plane_fit:
+            est = self._plane_fit(est, det, view, close_phase, tracked)
+        return est
+
+    def _use_perception(self, cam_id: str, frame: Frame, det: Detection | None, est: Any,
+                        ms: float, n_raw: int, tracked: bool, wall: float,
+                        state: VehicleState | None, estimator: Any, model: CameraModel) -> None:
+        """Log one processed frame and feed its estimate to the confirmation, the filter,
+        the camera choice and the grasp check (loop thread)."""
         self.perception_ms.append(ms)
         self._processed[cam_id] += 1
         self._since_reset[cam_id] += 1
@@ -579,7 +625,8 @@ class MissionRunner:
                        n=n_raw, used=det is not None,
                        center_px=None if det is None else det.center_px,
                        corners_px=None if det is None else det.corners_px,
-                       score=None if det is None else det.score, perception_ms=round(ms, 3))
+                       score=None if det is None else det.score, perception_ms=round(ms, 3),
+                       colour_track=tracked)
         st = self.machine.state
         if cam_id == CAMERA_NARROW:
             fine_ok = bool(est) and not str(getattr(est, "source", "")).startswith("fallback")
@@ -635,10 +682,82 @@ class MissionRunner:
             tool = gd.tool_point_ned(now_state.position_ned_m, now_state.attitude_q,
                                      self.cfg.tool_point_m)
             h_err, dist = gd.tool_errors(tool, filt.position_ned_m)
-            ok = (self._fine_phase == "descend" and h_err <= self.m.grasp_tolerance_m
-                  and abs(dist - self.m.grasp_distance_m) <= self.m.grasp_tolerance_m)
-            self._grasp_count = self._grasp_count + 1 if ok else 0
+            speed = math.sqrt(sum(v * v for v in now_state.velocity_ned_mps))
+            self._grasp_count = self._grasp_stability(
+                h_err, dist, speed <= self.p.grasp_max_speed_mps)
             self.tool_errors = (h_err, dist)
+
+    def _grasp_stability(self, h_err: float, dist: float, slow: bool = True) -> int:
+        """Frames counted towards ``grasp_stable_frames``: consecutive frames with the tool
+        point within ``grasp_hold_factor`` x the tolerance (wind makes the hover jitter by a
+        few cm) whose running mean and latest value are within the tolerance, in the descent
+        phase; 0 resets."""
+        tol = self.m.grasp_tolerance_m
+        near = (self._fine_phase == "descend" and slow
+                and h_err <= self.p.grasp_hold_factor * tol
+                and abs(dist - self.m.grasp_distance_m) <= self.p.grasp_hold_factor * tol)
+        if not near:
+            self._grasp_window.clear()
+            return 0
+        self._grasp_window.append((h_err, dist))
+        n = self.m.grasp_stable_frames
+        recent = list(self._grasp_window)[-n:]
+        h_mean = float(np.mean([h for h, _ in recent]))
+        d_mean = float(np.mean([d for _, d in recent]))
+        inside = (h_mean <= tol and abs(d_mean - self.m.grasp_distance_m) <= tol
+                  and h_err <= tol and abs(dist - self.m.grasp_distance_m) <= tol)
+        return len(self._grasp_window) if inside else min(len(self._grasp_window), n - 1)
+
+    def _plane_fit(self, est: TargetEstimate, det: Detection, view: CameraView,
+                   close_phase: bool, tracked: bool = False) -> TargetEstimate | EstimationFailed:
+        """Replace an estimate's position by the top-plane fit of its detection
+        (:mod:`~eaglemission.missions.silhouette`: top face or box silhouette, whichever
+        explains the MBR). In the final approach a detection no model explains (part of the
+        target, a merged blob) is refused; earlier the estimator's value is kept."""
+        cam = view.camera_pose_ned
+        m = view.model
+        cut = touches_border(det, m.width_px, m.height_px, self.p.image_border_px)
+        if cut and self._fit_hint is None:
+            return EstimationFailed("plane fit: the detection is cut by the image border and "
+                                    "no complete view gave the target's heading yet")
+        yaw_hint, region_hint = self._fit_hint if cut else (None, None)  # type: ignore[misc]
+        if tracked:
+            # a colour region is the whole silhouette: the top and the shaded sides share the
+            # target's chromaticity (not the detector's region of the earlier views)
+            region_hint = "box"
+        fit = fit_on_top_plane(m, cam, det.center_px, det.corners_px, self.cfg.target,
+                               yaw_hint_deg=yaw_hint, region_hint=region_hint,
+                               iterations=8 if cut else 4)
+        if fit is not None and not cut and fit.cost <= self.p.plane_fit_max_cost and close_phase:
+            self._fit_hint = (fit.yaw_deg, fit.region)
+        if fit is None or fit.cost > self.p.plane_fit_max_cost:
+            if close_phase:
+                why = "no fit" if fit is None else f"MBR mismatch {fit.cost:.2f}"
+                return EstimationFailed(f"plane fit: {why} (> plane_fit_max_cost="
+                                        f"{self.p.plane_fit_max_cost:g})")
+            return est
+        p = np.asarray(fit.position_ned_m)
+        d = p - cam.t
+        rng = float(np.linalg.norm(d))
+        sin_dep = max(float(d[2]) / max(rng, 1e-9), 1e-3)
+        std = rng * math.radians(self.p.plane_fit_angular_std_deg) / sin_dep
+        if self.p.size_range and close_phase and fit.size_ratio > 0:
+            # range from the apparent size (known target, 1/range) fused with the plane's
+            # range (the vehicle's altitude estimate): both along the same ray
+            s_plane = self.p.altitude_std_m / sin_dep
+            s_size = self.p.size_std_fraction * rng
+            w = s_plane**2 / (s_plane**2 + s_size**2)
+            k = 1.0 + w * (1.0 / fit.size_ratio - 1.0)
+            d = d * k
+            p = cam.t + d
+            fit = PlaneFit((float(p[0]), float(p[1]), float(p[2])), fit.region, fit.yaw_deg,
+                           fit.cost, fit.size_ratio)
+        src = "fit" if est.source.startswith("fallback") else f"{est.source.split(' ')[0]}+fit"
+        return replace(est, position_ned_m=fit.position_ned_m,
+                       position_cam_m=tuple(float(v) for v in cam.R.T @ d),
+                       std_m=std, source=f"{src}:{fit.region} yaw {fit.yaw_deg:.0f} "
+                                         f"cost {fit.cost:.2f} size {fit.size_ratio:.3f}"
+                                         + (" cut" if cut else ""))
 
     def _reference(self, p: Any, model: CameraModel | None = None,
                    state: VehicleState | None = None,
@@ -820,8 +939,42 @@ class MissionRunner:
                 else:
                     return standoff, yaw, self.m.approach_speed_mps
             grasp = gd.grasp_position(target, yaw, self.cfg.tool_point_m, self.m.grasp_distance_m)
+            if self.p.tilt_compensation:
+                # the vehicle leans into the wind: put the TILTED tool point over the target
+                off = self._tool_offset(vs, dt_s)
+                grasp = (target[0] - off[0], target[1] - off[1],
+                         target[2] - self.m.grasp_distance_m - off[2])
             return grasp, yaw, self.p.final_speed_mps
         return None
+
+    def _tool_offset(self, vs: VehicleState, dt_s: float) -> tuple[float, float, float]:
+        """The tool point's NED offset from the vehicle at its current attitude, low-passed
+        (time constant 1 s) so the attitude's jitter does not move the goal."""
+        off = gd.tool_point_ned((0.0, 0.0, 0.0), vs.attitude_q, self.cfg.tool_point_m)
+        if self._tool_off is None:
+            self._tool_off = off
+        else:
+            k = min(1.0, dt_s / 1.0)
+            self._tool_off = tuple(a + k * (b - a)  # type: ignore[assignment]
+                                   for a, b in zip(self._tool_off, off))
+        return self._tool_off
+
+    def _update_trim(self, goal: Any, position: Any, dt_s: float) -> tuple[float, float, float]:
+        """Integral trim of the setpoint at the grasp pose: a multicopter's position loop
+        holds a steady offset in wind (2-3 cm measured at 2.6 m/s), more than the grasp
+        tolerance; the trim integrates the (estimated) position error once the carrot has
+        reached the grasp goal, clamped to ``grasp_trim_max_m``."""
+        holding = ((self.machine.state is S.FINE_APPROACH and self._fine_phase == "descend")
+                   or self.machine.state is S.GRASP_READY)
+        if not holding or self.p.grasp_trim_gain_per_s <= 0:
+            return (0.0, 0.0, 0.0)
+        assert self._carrot is not None
+        if math.dist(self._carrot, goal) > 0.05:
+            return self._trim
+        k = self.p.grasp_trim_gain_per_s * dt_s
+        lim = self.p.grasp_trim_max_m
+        return tuple(float(np.clip(t + k * (g - p), -lim, lim))  # type: ignore[return-value]
+                     for t, g, p in zip(self._trim, goal, position))
 
     def _inside_envelope(self, pos: Any) -> bool:
         """The goal is inside the geofence, with the safety envelope's margin when the vehicle
@@ -863,7 +1016,9 @@ class MissionRunner:
                 if lead > max_lead:
                     self._carrot = gd.step_towards(vs.position_ned_m, self._carrot, max_lead)
             self._carrot_yaw = gd.yaw_step_deg(self._carrot_yaw, yaw, self.p.yaw_rate_degps * dt)
-            sp = gd.setpoint_at(self._carrot, self._carrot_yaw)
+            self._trim = self._update_trim(pos, vs.position_ned_m, dt)
+            sp = gd.setpoint_at(tuple(c + t for c, t in zip(self._carrot, self._trim)),
+                                self._carrot_yaw)
             try:
                 await asyncio.wait_for(self.vehicle.set_setpoint(sp),
                                        timeout=self.m.timeouts.command_s)
@@ -876,8 +1031,10 @@ class MissionRunner:
                 latency = (time.perf_counter() - wall + age_s) * 1e3
                 self.latencies_ms.append(latency)
                 self._fresh = None
+            filt = self.filter.state(now)
             self.log.write("setpoint", state=self.machine.state.value, setpoint=sp,
-                           goal=pos, latency_ms=None if latency is None else round(latency, 3))
+                           goal=pos, latency_ms=None if latency is None else round(latency, 3),
+                           target=None if filt is None else filt.position_ned_m)
 
     # -- actuator ------------------------------------------------------------------------------
     async def _command(self, name: str, coro_fn: Callable[[], Awaitable[Any]]) -> bool:
