@@ -1236,7 +1236,7 @@ async def _run_blocking(fn: Callable[..., Any], *args: Any) -> Any:
 def _wide_detection_in_narrow(det: Detection, wide: CameraModel, narrow: CameraModel,
                               state: VehicleState, target: Any) -> bool:
     """Paper Fig. 4(c): the wide-image detection lies inside the narrow camera's view drawn in
-    the wide image (helper F's ``estimators.fov`` predicate when available)."""
+    the wide image (the ``estimators.fov`` predicate)."""
     height = float(target[2]) - float(state.position_ned_m[2])  # vehicle height above the top
     if height <= 0:
         return False

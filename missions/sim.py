@@ -295,7 +295,7 @@ def run_simulation(cfg: MissionFile, *, realtime: bool = False, **kwargs: Any) -
 
 
 def _make_recorder(record_dir: str | Path, models: dict[str, Any]) -> Any:
-    """Helper C's replay-format recorder (both camera streams + telemetry)."""
+    """The replay-format recorder (both camera streams + telemetry)."""
     from eaglemission.drivers.cameras.recorder import RunRecorder
 
     return _RecorderAdapter(RunRecorder(Path(record_dir), models=models))
