@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from eaglemission.detectors.base import DetectorConfig, SaliencyDetector
 from eaglemission.detectors.dtdmi import equations as eq
-from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic
+from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
 from eaglemission.detectors.dtdmi.static import NBINS, ClusterStatic, StaticParams, quantize_bgr
 from pydantic import Field, field_validator
 
@@ -147,13 +147,25 @@ def smooth_mapped(s: np.ndarray, sigma_px: float, out_hw: tuple[int, int],
     Done on a copy reduced by ~sigma / 4 (fast); mapped there, so the bilinear upsampling
     (a convex combination) stays in [0, 1]. A map that is zero everywhere stays zero.
     """
-    f = max(1, int(sigma_px / 4))
+    f = smoothing_factor(sigma_px)
     h, w = s.shape
     if f > 1:
         small = cv2.resize(s, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
     else:
         small = s  # small sigma (field preset): blur in place at full resolution
-    small = cv2.GaussianBlur(small, (0, 0), sigma_px / f, dst=small if f == 1 else None)
+    return smooth_reduced(small, sigma_px / f, f == 1, out_hw, to_unit)
+
+
+def smoothing_factor(sigma_px: float) -> int:
+    """The reduction factor :func:`smooth_mapped` blurs at (~sigma / 4, at least 1)."""
+    return max(1, int(sigma_px / 4))
+
+
+def smooth_reduced(small: np.ndarray, sigma_px: float, in_place: bool, out_hw: tuple[int, int],
+                   to_unit: Callable[[np.ndarray, float | None, np.ndarray], None]) -> np.ndarray:
+    """The second half of :func:`smooth_mapped`: blur the reduced map ``small`` (by ``sigma_px``
+    at its own resolution; in place if ``in_place``), map it, resize it to ``out_hw``."""
+    small = cv2.GaussianBlur(small, (0, 0), sigma_px, dst=small if in_place else None)
     mapped = np.empty_like(small)
     to_unit(small, None, mapped)
     if mapped.shape == (out_hw[0], out_hw[1]):
@@ -200,7 +212,33 @@ class DTDMIEngine:
         # colour bin per pixel: the numba kernels compute it on the fly where they paint
         self._idx = np.zeros((1, 1) if self.numba else shape, np.uint16)
         self._out = np.zeros(shape, np.float32)
-        self._ups = np.zeros((n_up, h, w), np.float32)
+        # numpy backend: the coarse scales upsampled to full resolution (numba: on the fly)
+        self._ups = np.zeros((n_up, h, w) if not self.numba else (n_up, 1, 1), np.float32)
+        self._no_base = np.zeros((0, 1), np.float32)
+        self._no_lut = np.zeros(1, np.float32)
+        # numba and no per-scale normalisation (that needs each scale's maximum first): every
+        # scale is streamed into Eqs. (14)-(15) (_streamed) when the scales are the full
+        # resolution plus at most two coarser ones of different sizes (the plain version sums
+        # the coarse scales at the larger one's resolution; with two, that is a chain).
+        coarse_hw = [scale_shape(shape, s) for s in self.cfg.scales[1:]]
+        self._chain = (self.numba and not self.r.normalize_scales and self._has_full
+                       and len(coarse_hw) <= 2 and len(set(coarse_hw)) == len(coarse_hw)
+                       and shape not in coarse_hw)
+        # streamed, no ego-motion (it aligns on the float grey), second scale exactly half:
+        # its grey comes from kernels.grey_half
+        # (and every further one exactly half the one before, so that dynamic.step reduces
+        # it from that one, never from the 8-bit frame)
+        self._half = None
+        if self._chain and self.cfg.ego_motion == "none" and coarse_hw:
+            ok, prev = True, (h, w)
+            for hw in coarse_hw:
+                ok = ok and prev[0] % 2 == 0 and prev[1] % 2 == 0 and \
+                    hw == (prev[0] // 2, prev[1] // 2)
+                prev = hw
+            if ok:
+                self._half = np.zeros(coarse_hw[0], np.float32)
+        self._up: dict[tuple[tuple[int, int], tuple[int, int]],
+                       tuple[tuple[np.ndarray, ...], np.ndarray | None]] = {}
         self._grey8 = np.zeros(shape, np.uint8)
         self._grey = np.zeros(shape, np.float32)
         self._hist = np.zeros(NBINS, np.float64)
@@ -212,6 +250,20 @@ class DTDMIEngine:
         c = self.r.centre_sigma_frac
         self._centre = (eq.gaussian_centre_weight(rows, cols, shape, c).astype(np.float32)
                         if c > 0 else self._dummy)
+        # the same Gaussian as a separable product (centre = row weight x column weight)
+        self._centre_row = (eq.gaussian_centre_weight(rows[:, 0], (w - 1) / 2.0, shape, c)
+                            .astype(np.float32) if c > 0 else np.ones(h, np.float32))
+        self._centre_col = (eq.gaussian_centre_weight((h - 1) / 2.0, cols[0], shape, c)
+                            .astype(np.float32) if c > 0 else np.ones(w, np.float32))
+        # Default preset (numba): Eqs. (14)-(15) go straight into the f x f block means that
+        # the smoothing starts from (kernels.combine / midbrain_combine with f > 1: what
+        # smooth_mapped's INTER_AREA reduction gives), so no full-resolution S plane is written.
+        self._pool_f = 0
+        if self.numba and self.r.blur_sigma_frac > 0 and self.r.fusion != "boost":
+            f = smoothing_factor(self.r.blur_sigma_frac * float(np.hypot(h, w)))
+            if f > 1 and h % f == 0 and w % f == 0:
+                self._pool_f = f
+                self._pooled = np.zeros((h // f, w // f), np.float32)
         self._shape = shape
 
     # -- parts ----------------------------------------------------------------------------------
@@ -238,6 +290,44 @@ class DTDMIEngine:
             lut = np.power(lut, np.float32(self.r.static_exponent))
         return lut
 
+    def _upsampling(self, base: np.ndarray, target_hw: tuple[int, int]
+                    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """The plane and :func:`.kernels.linear_coeffs` (rows, columns) the numba kernels
+        upsample the coarse scales' sum from, on the fly.
+
+        OpenCV's bilinear float resize matches the plain formula for power-of-two factors
+        (weights 1/4, 3/4, ...) but not for every ratio (it quantises the weights). This is
+        checked once per resolution on a random plane; where it does not match within 1e-6,
+        ``base`` is resized by OpenCV to a full-resolution plane first, read with identity
+        coefficients (the previous, slower way).
+        """
+        hw = (base.shape[0], base.shape[1])
+        key = (hw, target_hw)
+        if key not in self._up:
+            h, w = target_hw
+            ys, yw = self._k.linear_coeffs(h, max(1, hw[0]))
+            xs, xw = self._k.linear_coeffs(w, max(1, hw[1]))
+            exact = True
+            if hw[0] > 0:
+                probe = np.random.RandomState(0).rand(*hw).astype(np.float32)
+                ref = cv2.resize(probe, (w, h), interpolation=cv2.INTER_LINEAR)
+                rows = probe[ys] * (1 - yw[:, None]) + probe[np.minimum(ys + 1, hw[0] - 1)] \
+                    * yw[:, None]
+                mine = rows[:, xs] * (1 - xw) + rows[:, np.minimum(xs + 1, hw[1] - 1)] * xw
+                exact = float(np.abs(mine - ref).max()) <= 1e-6
+            if exact:
+                self._up[key] = ((ys, yw, xs, xw), None)
+            else:
+                ident_y = self._k.linear_coeffs(h, h)
+                ident_x = self._k.linear_coeffs(w, w)
+                self._up[key] = ((*ident_y, *ident_x), np.zeros((h, w), np.float32))
+        coeffs, full = self._up[key]
+        if full is None:
+            return base, coeffs
+        h, w = target_hw
+        cv2.resize(base, (w, h), dst=full, interpolation=cv2.INTER_LINEAR)
+        return full, coeffs
+
     def _compress(self, top: float) -> float:
         """Per-scale factor ``1 / max`` (default preset) or 1 (literal)."""
         if not self.r.normalize_scales:
@@ -248,7 +338,16 @@ class DTDMIEngine:
                              timestamp_ns: int) -> float:
         """Eqs. (7)-(15) into ``self._out``; returns its maximum."""
         cv2.cvtColor(work, cv2.COLOR_BGR2GRAY, dst=self._grey8)
+        if self._half is not None:
+            # the full scale reads the 8-bit image (kernels._response_row), the half scale is
+            # its 2 x 2 block means: no full-resolution float grey plane
+            self._k.grey_half(self._grey8, self._half)
+            self.dynamic.step(self._grey8, timestamp_ns, defer=True, given={1: self._half})
+            return self._streamed(work, lut)
         np.multiply(self._grey8, np.float32(1.0 / 255.0), out=self._grey)
+        if self._chain:
+            self.dynamic.step(self._grey, timestamp_ns, defer=True)
+            return self._streamed(work, lut)
         maps = self.dynamic.step(self._grey, timestamp_ns)
         gamma = np.float32(self.r.dynamic_exponent)
         tops = self.dynamic.tops
@@ -265,16 +364,18 @@ class DTDMIEngine:
                 np.sqrt(m, out=m)
             elif gamma != 1.0:
                 np.power(m, gamma, out=m)
+        base = self._no_base
         if coarse:
             # The coarser scales are summed at the largest coarse scale's resolution, so only
-            # one plane is upsampled to full resolution (~0.5 ms at 1280x960).
+            # one plane is upsampled to full resolution (numba: on the fly, row by row).
             b = max(range(len(coarse)), key=lambda i: coarse[i].size)
             base = coarse[b]
             for k, m in enumerate(coarse):
                 if k != b:
                     base += cv2.resize(m, (base.shape[1], base.shape[0]),
                                        interpolation=cv2.INTER_LINEAR)
-            cv2.resize(base, (w, h), dst=self._ups[0], interpolation=cv2.INTER_LINEAR)
+            if not self.numba:
+                cv2.resize(base, (w, h), dst=self._ups[0], interpolation=cv2.INTER_LINEAR)
         inv0 = self._compress(tops[0]) if full is not None else 1.0
         boost = self.r.fusion == "boost" and lut is not None
         use_static = lut is not None and not boost
@@ -282,16 +383,17 @@ class DTDMIEngine:
         use_centre = self.r.centre_sigma_frac > 0 and not boost
         n = len(maps)
         if self.numba:
+            # self._pool_f > 1: S only as the block means the smoothing starts from
+            lut_k = lut if use_static else np.zeros(1, np.float32)
+            pooled = self._pooled if self._pool_f else self._dummy
+            base, up = self._upsampling(base, self._shape)
             top = float(self._k.combine(
                 full if full is not None else self._dummy, np.float32(inv0), float(gamma),
-                full is not None, self._ups, n, lut if use_static else np.zeros(1, np.float32),
-                work, use_static, self._centre, use_centre, self._out))
-            if boost:  # field preset's Eq. (15): S_s x (1 + gain x S_M)
-                top = float(self._k.boost(work, lut, float(self.r.dynamic_gain), self._out))
-                if self.r.centre_sigma_frac > 0:
-                    np.multiply(self._out, self._centre, out=self._out)
-                    top = float(self._out.max())
-            return top
+                full is not None, base, up, n, lut_k, work, use_static, self._centre_row,
+                self._centre_col, use_centre, self._pool_f, pooled, self._out))
+            if self._pool_f:
+                return -1.0  # the maximum is taken after the smoothing
+            return self._boost(work, lut, top) if boost else top
         acc = self._out
         acc[...] = 0.0
         if full is not None:
@@ -309,6 +411,55 @@ class DTDMIEngine:
             if self.r.centre_sigma_frac > 0:
                 acc *= self._centre
         return float(acc.max())
+
+    def _boost(self, work: np.ndarray, lut: np.ndarray, top: float) -> float:
+        """Field preset's Eq. (15), ``S_s x (1 + gain x S_M)``, on ``self._out`` (numba)."""
+        top = float(self._k.boost(work, lut, float(self.r.dynamic_gain), self._out))
+        if self.r.centre_sigma_frac > 0:
+            np.multiply(self._out, self._centre, out=self._out)
+            top = float(self._out.max())
+        return top
+
+    def _streamed(self, work: np.ndarray, lut: np.ndarray | None) -> float:
+        """Eqs. (7)-(15) (numba, ``self._chain``): every scale streamed by
+        :func:`.kernels.midbrain_combine`, coarsest first, each Eq. (13) row consumed as made.
+
+        A coarse scale's kernel writes ``S_M^gamma`` plus the (already compressed) coarser
+        scale upsampled to it into its ``sm`` plane -- the sum the plain version builds at the
+        largest coarse scale's resolution -- and the full-resolution scale adds that sum
+        upsampled, divides by the number of scales (Eq. (14)) and applies Eq. (15). Returns
+        the maximum of ``self._out`` (-1 when only the block means of the smoothing are made).
+        """
+        gamma = float(np.float32(self.r.dynamic_exponent))
+        radius = int(self.cfg.tensor_radius_px)
+        floor = float(self.cfg.dynamic_floor)
+        deferred = self.dynamic.deferred
+        boost = self.r.fusion == "boost" and lut is not None
+        use_static = lut is not None and not boost
+        use_centre = self.r.centre_sigma_frac > 0 and not boost
+        no_lut = self._no_lut
+        base = self._no_base
+        for sc, grey_s, gain in sorted(deferred[1:], key=lambda d: d[0].sm.size):
+            b, up = self._upsampling(base, sc.shape)
+            self._k.midbrain_combine(
+                grey_s, sc.g_delayed, sc.g_prev, np.float32(gain), radius, floor, sc.o, gamma, b,
+                up, 1, no_lut, work, False, self._centre_row, self._centre_col, False, 0,
+                self._dummy, sc.sm)
+            base = sc.sm
+        sc, grey_s, gain = deferred[0]
+        grey_scale = 1.0 / 255.0 if grey_s.dtype == np.uint8 else 1.0
+        b, up = self._upsampling(base, self._shape)
+        pooled = self._pooled if self._pool_f else self._dummy
+        # boost in the same pass unless a centre weight follows it (then a pass of its own)
+        boost_in = boost and self.r.centre_sigma_frac == 0
+        top = float(self._k.midbrain_combine(
+            grey_s, sc.g_delayed, sc.g_prev, np.float32(gain), radius, floor, sc.o, gamma, b, up,
+            len(deferred), lut if (use_static or boost_in) else no_lut, work, use_static,
+            self._centre_row, self._centre_col, use_centre, self._pool_f, pooled, self._out,
+            float(self.r.dynamic_gain) if boost_in else -1.0, grey_scale))
+        if self._pool_f:
+            return -1.0  # the maximum is taken after the smoothing
+        return self._boost(work, lut, top) if boost and not boost_in else top
 
     # -- whole frame ----------------------------------------------------------------------------
     def saliency(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
@@ -338,6 +489,10 @@ class DTDMIEngine:
                     out *= self._centre
                 top = float(out.max())
         full_shape = (bgr.shape[0], bgr.shape[1])
+        if cfg.use_dynamic and self._pool_f:
+            sigma_px = self.r.blur_sigma_frac * float(np.hypot(*shape))
+            return smooth_reduced(self._pooled, sigma_px / self._pool_f, True, full_shape,
+                                  self._to_unit)
         if self.r.blur_sigma_frac > 0:
             return smooth_mapped(out, self.r.blur_sigma_frac * float(np.hypot(*shape)),
                                  full_shape, self._to_unit)

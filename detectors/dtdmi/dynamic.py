@@ -97,7 +97,19 @@ class MidbrainDynamic:
                 egomotion.warp_state(plane, hs, sc.tmp)
                 plane[...] = sc.tmp
 
-    def step(self, grey: F32, timestamp_ns: int) -> list[F32]:
+    def step(self, grey: F32, timestamp_ns: int, *, defer: bool = False,
+             given: dict[int, F32] | None = None) -> list[F32]:
+        """Advance every scale by one frame; the per-scale Eq. (13) maps (``self.tops``: maxima).
+
+        ``defer``: the time step, ego-motion alignment and per-scale grey images are done, but
+        Eqs. (7)-(13) are left to a caller that streams them into its own use of the maps
+        (:func:`.kernels.midbrain_combine`, numba backend): ``self.deferred`` lists
+        ``(scale, grey of the scale, gain)`` in scale order; the returned maps are then stale
+        and the tops NaN. ``given``: grey images of some scales (by index) the caller already
+        has (with ``defer``, ``grey`` itself may then be the 8-bit image: the caller's kernel
+        reads it as such); no ego-motion alignment with it.
+        """
+        self.deferred: list[tuple[_Scale, F32, float]] = []
         shape = (grey.shape[0], grey.shape[1])
         if shape != self._shape:
             self._allocate(shape)
@@ -113,13 +125,32 @@ class MidbrainDynamic:
         gain = 0.0 if dt_s is None else 1.0 / eq.tau_steps(dt_s, self.p.tau_s)
         out = []
         self.tops: list[float] = []
-        for sc in self._scales:
-            if sc.shape == shape:
+        prev: F32 | None = None
+        for k, sc in enumerate(self._scales):
+            if given is not None and k in given:
+                g_s = given[k]
+            elif sc.shape == shape:
                 g_s = grey  # the processing resolution itself: no copy
             else:
-                cv2.resize(grey, (sc.shape[1], sc.shape[0]), dst=sc.grey,
+                # From the previous scale when that is exactly twice this one and an integer
+                # reduction of the frame (nested block means: the same values up to float
+                # rounding; OpenCV's 2x area path is ~10x faster than its 4x one), else from
+                # the frame.
+                use_prev = (prev is not None and prev.shape == (2 * sc.shape[0], 2 * sc.shape[1])
+                            and shape[0] % prev.shape[0] == 0 and shape[1] % prev.shape[1] == 0)
+                if not use_prev and grey.dtype != np.float32:
+                    raise ValueError("dtdmi: an 8-bit grey frame needs every coarse scale given "
+                                     "or exactly half the one before (internal error)")
+                src = prev if use_prev else grey
+                cv2.resize(src, (sc.shape[1], sc.shape[0]), dst=sc.grey,
                            interpolation=cv2.INTER_AREA)
                 g_s = sc.grey
+            prev = g_s
+            if defer:
+                self.deferred.append((sc, g_s, gain))
+                self.tops.append(float("nan"))
+                out.append(sc.sm)
+                continue
             if self._fused is not None:
                 top = self._fused(g_s, sc.g_delayed, sc.g_prev, gain, self.p.tensor_radius_px,
                             sc.o, sc.sm, self.p.floor)
