@@ -54,6 +54,7 @@ from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces.estimator import CameraView
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.safety import SafeVehicle
 from eaglemission.safety_geometry import inside_geofence
 from eaglemission.types import (
     Detection,
@@ -321,7 +322,8 @@ class MissionRunner:
     Parameters
     ----------
     cfg : the mission file; params : the mission plugin's params
-    vehicle : a connected :class:`~eaglemission.safety.SafeVehicle` (or any Vehicle in tests)
+    vehicle : a connected Vehicle; wrapped in :class:`~eaglemission.safety.SafeVehicle` here
+        unless it already is one, so no plugin can bypass the envelope
     cameras : ``{"wide": Camera, "narrow": Camera}``; models : the NOMINAL camera models
     detectors : one detector per camera (their temporal state is per camera)
     coarse, fine : estimators; clock : the mission clock; mission_log : JSON-lines log
@@ -338,6 +340,8 @@ class MissionRunner:
                  on_telemetry: Callable[[VehicleState], None] | None = None,
                  record_all: bool = False) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
+        if not isinstance(vehicle, SafeVehicle):
+            vehicle = SafeVehicle(vehicle, cfg.safety, clock=clock)
         self.vehicle, self.cameras, self.models = vehicle, cameras, models
         self.detectors, self.coarse, self.fine = detectors, coarse, fine
         self.clock, self.log = clock, mission_log
