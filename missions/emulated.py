@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from eaglemission.missions.approach import ApproachConfig, MissionState
+from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.evaluator import evaluate
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.runner import MissionRunner
@@ -24,6 +24,7 @@ from eaglemission.missions.sim import (
     SimOutcome,
     _make_recorder,
     build_detector,
+    report_state_changes,
     vehicle_params,
 )
 
@@ -108,15 +109,7 @@ async def fly_emulated(cfg: MissionFile, *, log_path: str | Path | None = None,
                                on_frame=None if recorder is None else recorder.frame,
                                record_all=recorder is not None)
         if on_state is not None:
-            prev = runner.machine._on_change
-
-            def _cb(old: MissionState, new: MissionState, reason: str) -> None:
-                if prev is not None:
-                    prev(old, new, reason)
-                action = runner.machine.action if new is MissionState.FAILSAFE else ""
-                on_state((clock.now_ns() - t0_ns) * 1e-9, new.value, reason, action)
-
-            runner.machine._on_change = _cb
+            report_state_changes(runner, on_state, clock, t0_ns)
         result = await runner.run()
     finally:
         for c in cams.values():

@@ -252,15 +252,7 @@ async def fly_simulation(cfg: MissionFile, *, params: ApproachConfig | None = No
                                on_frame=None if recorder is None else recorder.frame,
                                on_telemetry=on_telemetry, record_all=recorder is not None)
         if on_state is not None:
-            prev = runner.machine._on_change
-
-            def _cb(old: MissionState, new: MissionState, reason: str) -> None:
-                if prev is not None:
-                    prev(old, new, reason)
-                action = runner.machine.action if new is MissionState.FAILSAFE else ""
-                on_state((clock.now_ns() - t0_ns) * 1e-9, new.value, reason, action)
-
-            runner.machine._on_change = _cb
+            report_state_changes(runner, on_state, clock, t0_ns)
         fault_task = asyncio.create_task(_inject_faults(faults, runner, inner, cams, clock, mlog))
         try:
             result = await runner.run()
@@ -313,3 +305,18 @@ class _RecorderAdapter:
 
     def close(self) -> None:
         self.rec.close()
+
+
+def report_state_changes(runner: MissionRunner, on_state: Callable[..., None], clock: Any,
+                         t0_ns: int) -> None:
+    """Chain ``on_state(t_s, state, reason, failsafe_action)`` after the machine's own
+    state-change callback (the CLI prints the state changes with it)."""
+    prev = runner.machine._on_change
+
+    def _cb(old: MissionState, new: MissionState, reason: str) -> None:
+        if prev is not None:
+            prev(old, new, reason)
+        action = runner.machine.action if new is MissionState.FAILSAFE else ""
+        on_state((clock.now_ns() - t0_ns) * 1e-9, new.value, reason, action)
+
+    runner.machine._on_change = _cb
