@@ -164,9 +164,10 @@ class ClusterStatic:
         """S_s of each of the 4096 colour bins for this frame (Eqs. (2)-(6))."""
         return self.bin_saliency_from_hist(*self.histograms(idx), timestamp_ns)
 
-    def bin_saliency_from_hist(self, hist: NDArray[np.float64], whist: NDArray[np.float64],
-                               timestamp_ns: int) -> NDArray[np.float32]:
-        """S_s of each bin from the histograms of :meth:`histograms` (or the fused kernel)."""
+    def _cluster_bins(self, hist: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64], int]:
+        """Warm-started weighted k-means of the occupied colour bins (the clustering of
+        Fu et al.); returns the occupied bins, their cluster labels, each cluster's pixel count and K. A change of K
+        restarts the clustering and empties the Eq. (5) window."""
         occ = np.flatnonzero(hist)
         x, n_occ = self._features[occ], hist[occ]
         # sqrt weights let rare colours (a small target) win a cluster of their own.
@@ -183,7 +184,12 @@ class ClusterStatic:
             lab = self._k.weighted_kmeans(np.ascontiguousarray(x), w, self._centres, iters)
         else:
             self._centres, lab = weighted_kmeans(x, w, self._centres, iters)
-        counts = np.bincount(lab, weights=n_occ, minlength=k)
+        return occ, lab, np.bincount(lab, weights=n_occ, minlength=k), k
+
+    def bin_saliency_from_hist(self, hist: NDArray[np.float64], whist: NDArray[np.float64],
+                               timestamp_ns: int) -> NDArray[np.float32]:
+        """S_s of each bin from the histograms of :meth:`histograms` (or the fused kernel)."""
+        occ, lab, counts, k = self._cluster_bins(hist)
         wsums = np.bincount(lab, weights=whist[occ], minlength=k)
         # Eq. (5): the window of past frames, in seconds.
         self._window.append((timestamp_ns, wsums, counts))
@@ -233,21 +239,7 @@ class ClusterStatic:
         compactness (:func:`.equations.distribution_cue`) instead of the centre weighting of
         Eqs. (3)-(5); Eq. (6) is their product.
         """
-        occ = np.flatnonzero(hist)
-        x, n_occ = self._features[occ], hist[occ]
-        w = np.sqrt(n_occ) if self.p.kmeans_weight == "sqrt" else n_occ
-        k = min(self.p.clusters, len(occ))
-        if self._centres is None or len(self._centres) != k:
-            self._centres = kmeanspp_init(x, w, k)
-            iters = self.p.kmeans_iters_init
-        else:
-            iters = self.p.kmeans_iters
-        if self._k is not None:
-            self._centres = np.ascontiguousarray(self._centres, dtype=np.float64)
-            lab = self._k.weighted_kmeans(np.ascontiguousarray(x), w, self._centres, iters)
-        else:
-            self._centres, lab = weighted_kmeans(x, w, self._centres, iters)
-        counts = np.bincount(lab, weights=n_occ, minlength=k)
+        occ, lab, counts, k = self._cluster_bins(hist)
         if self.p.contrast_level == "cluster":
             d2 = ((self._features[:, None, :] - self._centres[None]) ** 2).sum(axis=2)
             contrast = eq.contrast_cue(self._centres, counts)[np.argmin(d2, axis=1)]
