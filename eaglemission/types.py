@@ -243,6 +243,9 @@ class VehicleState:
     gps_fix: bool = True
     link_ok: bool = True
     armable: bool = True
+    # downward distance sensor (PX4 DISTANCE_SENSOR, MAVSDK Telemetry.distance_sensor): range
+    # along the body's down axis to what lies below, metres; None without a sensor or out of range
+    distance_to_ground_m: float | None = None
 
     @property
     def yaw_deg(self) -> float:

@@ -130,6 +130,10 @@ class ApproachConfig(BaseModel):
                                       "explains (sum of |log ratio|)")
     plane_fit_angular_std_deg: float = Field(1.0, gt=0, description="1-sigma angular error of "
                                              "a plane-fit estimate (mount, attitude, pixels)")
+    grasp_accept_fraction: float = Field(0.5, gt=0, le=1, description="GRASP_READY needs the "
+                                         "running mean of the estimated tool-point errors within "
+                                         "this fraction of the tolerance (margin for the "
+                                         "estimate's own error)")
     grasp_hold_factor: float = Field(1.6, ge=1, description="grasp stability: every frame "
                                      "within this x grasp_tolerance_m, their mean within it "
                                      "(a hover in wind jitters by a few cm)")
@@ -142,6 +146,21 @@ class ApproachConfig(BaseModel):
                                      "range from apparent size (focal error, segmentation)")
     altitude_std_m: float = Field(0.04, gt=0, description="1-sigma error of the vehicle's "
                                   "altitude estimate (sets the plane's range error)")
+    plane_offset: bool = Field(True, description="learn the height of the target's top in "
+                               "the vehicle's estimated frame from complete close views (range "
+                               "from apparent size) and fit later views on that plane, instead "
+                               "of trusting the altitude estimate (docs/mission.md)")
+    plane_from_size: bool = Field(False, description="also measure the plane from complete "
+                                  "close views' apparent size (off: measured worse than the "
+                                  "altitude estimate alone, docs/mission.md)")
+    rangefinder: Literal["auto", "off"] = Field("auto", description="auto: a downward distance "
+                                                "sensor in the telemetry measures the plane")
+    rangefinder_std_m: float = Field(0.02, gt=0, description="1-sigma error of a rangefinder "
+                                     "reading, ground roughness included")
+    plane_max_cost: float = Field(0.2, gt=0, description="only views whose plane fit costs "
+                                  "at most this measure the plane")
+    plane_offset_drift_mps: float = Field(0.01, ge=0, description="random-walk sigma of the "
+                                          "altitude estimate's drift, m per sqrt(s)")
     tilt_compensation: bool = Field(True, description="place the tool point over the target "
                                     "at the vehicle's current (low-passed) attitude: in wind the "
                                     "vehicle leans and a level-attitude goal is off by cm")

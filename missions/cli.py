@@ -50,8 +50,8 @@ def _print_outcome(console: Any, out: Any) -> None:
     if r.failsafe_params is not None:
         console.print("autopilot failsafe parameters: " + ", ".join(
             f"{k}={v:g}" for k, v in r.failsafe_params.items()))
-        for w in r.failsafe_warnings:
-            console.print(f"  [yellow]warning[/yellow]: {w}")
+    for w in r.failsafe_warnings:
+        console.print(f"  [yellow]warning[/yellow]: {w}")
     console.print(f"frames processed: {r.frames_processed}, with a detection: {r.detections}")
     console.print(f"envelope violations: {len(ev.violations)}"
                   + "".join(f"\n  {v.kind} at {v.t_s:.1f} s: {v.value:.2f} > {v.limit:.2f} "

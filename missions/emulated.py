@@ -1,9 +1,10 @@
 """``eaglemission run --vehicle emulator``: the same mission through the MAVSDK driver and the
 PX4-like MAVLink emulator (in-process ``raw://`` link), in real time.
 
-The synthetic cameras render from the pose the driver reports (telemetry ``state_at``), as they
-would on a PX4 SITL; the evaluator's truth is the emulator's true position, sampled by the
-runner's telemetry task.
+The synthetic cameras render from the emulator's TRUE pose (a camera sees the world from where
+the vehicle is, not from the autopilot's drifting estimate); on a real PX4 SITL (``url``), whose
+truth is not exposed, they render from the pose the driver reports (telemetry ``state_at``).
+The evaluator's truth is the emulator's true position, sampled by the runner's telemetry task.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ async def fly_emulated(cfg: MissionFile, *, log_path: str | Path | None = None,
     real autopilot at ``url`` (e.g. a PX4 SITL; then the "truth" for the evaluator is the
     autopilot's own telemetry, the only thing available)."""
     from eaglemission.drivers.cameras.synthetic import make_synthetic_rig
-    from eaglemission.drivers.vehicles.dynamics import DynamicsParams
+    from eaglemission.drivers.vehicles.dynamics import DynamicsParams, RangefinderParams
     from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
     from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
 
@@ -58,8 +59,10 @@ async def fly_emulated(cfg: MissionFile, *, log_path: str | Path | None = None,
     mlog = MissionLog(log_path, now_ns=clock.now_ns)
     sim = cfg.simulation
     dyn = DynamicsParams.model_validate(vehicle_params(cfg).get("dynamics", {}))
+    # the same downward rangefinder as the simulated vehicle (DISTANCE_SENSOR through MAVSDK)
+    rf = RangefinderParams.model_validate(vehicle_params(cfg).get("rangefinder", {}))
     emu = None if url else Px4Emulator(EmulatorConfig(
-        seed=sim.seed, wind_ne_mps=tuple(sim.wind_ne_mps), dynamics=dyn,
+        seed=sim.seed, wind_ne_mps=tuple(sim.wind_ne_mps), dynamics=dyn, rangefinder=rf,
         params={"RTL_RETURN_ALT": float(vehicle_params(cfg)["rtl_return_altitude_m"])}))
     inner = MavsdkVehicle(MavsdkVehicle.Config(url=url or "raw://",
                                                connect_timeout_s=connect_timeout_s),
@@ -67,7 +70,16 @@ async def fly_emulated(cfg: MissionFile, *, log_path: str | Path | None = None,
     vehicle = SafeVehicle(inner, cfg.safety, clock=clock)
 
     def pose_from_telemetry(t_ns: int) -> Any:
-        st = inner.state_at(t_ns)
+        if emu is not None:
+            # the cameras see the world from where the vehicle IS: the emulator's truth
+            # (extrapolated from its latest step to the exposure time), not the drifting
+            # estimate the driver reports
+            snap = emu.snapshot()
+            dt = (t_ns - clock.now_ns()) * 1e-9
+            p, v = snap.true_position_ned_m, snap.velocity_ned_mps
+            return ((p[0] + v[0] * dt, p[1] + v[1] * dt, p[2] + v[2] * dt),
+                    snap.true_attitude_q)
+        st = inner.state_at(t_ns)  # a real PX4 SITL: only its telemetry is known
         return None if st is None else (st.position_ned_m, st.attitude_q)
 
     rig = make_synthetic_rig(cfg, pose_from_telemetry, clock)

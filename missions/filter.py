@@ -139,3 +139,57 @@ class TargetFilter:
             max(0.0, (t_ns - self._t_update_ns) * 1e-9),
             self.updates,
         )
+
+
+class PlaneOffsetFilter:
+    """Height of the target's top plane *in the vehicle's estimated frame*, as an offset (m,
+    positive down) from its nominal height ``-target.height_m`` (flat ground at home's height).
+
+    The vehicle's altitude estimate is off by a few centimetres and drifts slowly; every
+    position found by intersecting a ray with the nominal plane inherits that error along the
+    ray, which at the grasp pose (0.5 m range, 50 deg depression) moves the estimate by ~1.3x
+    the altitude error down *and* along the approach. Complete close views measure the plane
+    through the target's apparent size (range = plane range / size ratio); this scalar
+    random-walk Kalman filter fuses them, and the plane fits of later (cut) views use its value.
+    """
+
+    def __init__(self, prior_std_m: float, process_noise_mps: float, gate_sigma: float = 4.0
+                 ) -> None:
+        if prior_std_m <= 0 or process_noise_mps < 0 or gate_sigma <= 0:
+            raise ValueError("PlaneOffsetFilter: prior_std_m and gate_sigma must be > 0, "
+                             f"process_noise_mps >= 0; got {prior_std_m}, {process_noise_mps}, "
+                             f"{gate_sigma}")
+        self.prior_std_m = float(prior_std_m)
+        self.process_noise_mps = float(process_noise_mps)
+        self.gate_sigma = float(gate_sigma)
+        self.reset()
+
+    def reset(self) -> None:
+        self.offset_m = 0.0
+        self._var = self.prior_std_m**2
+        self._t_ns: int | None = None
+        self.updates = 0
+
+    def std_m(self, t_ns: int | None = None) -> float:
+        var = self._var
+        if t_ns is not None and self._t_ns is not None and t_ns > self._t_ns:
+            var += self.process_noise_mps**2 * (t_ns - self._t_ns) * 1e-9
+        return math.sqrt(var)
+
+    def update(self, offset_m: float, std_m: float, t_ns: int) -> bool:
+        """Fuse one measured offset (m, positive down); False when gated out."""
+        if not (math.isfinite(offset_m) and math.isfinite(std_m) and std_m > 0):
+            raise ValueError(f"offset_m, std_m: must be finite (std > 0), got {offset_m}, {std_m}")
+        var = self.std_m(t_ns) ** 2
+        if self._t_ns is None or t_ns > self._t_ns:
+            self._t_ns = t_ns
+        s = var + std_m**2
+        innov = offset_m - self.offset_m
+        if innov * innov > self.gate_sigma**2 * s:
+            self._var = var
+            return False
+        k = var / s
+        self.offset_m += k * innov
+        self._var = (1.0 - k) * var
+        self.updates += 1
+        return True

@@ -45,7 +45,7 @@ from eaglemission.missions.approach import (
     Snapshot,
     failsafe,
 )
-from eaglemission.missions.filter import TargetFilter
+from eaglemission.missions.filter import PlaneOffsetFilter, TargetFilter
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.silhouette import PlaneFit, colour_blob, fit_on_top_plane
 
@@ -349,6 +349,9 @@ class MissionRunner:
         self.record_all = record_all
         self.machine = ApproachMachine(on_change=self._on_state_change)
         self.filter = TargetFilter(params.filter)
+        self.plane = PlaneOffsetFilter(params.altitude_std_m, params.plane_offset_drift_mps)
+        self._last_range_m: float | None = None
+        self._plane_meas: tuple[float, float, int, float, float, str] | None = None
         self._stopping = False
         self._finished = asyncio.Event()
         self._wake_setpoint = asyncio.Event()
@@ -435,6 +438,7 @@ class MissionRunner:
                 self._commands.put_nowait(("start_offboard", None))
             st = self.vehicle.state()
             self._route_s = max(self._route_s, gd.along_route_m(self._route, *st.position_ned_m[:2]))
+            self._report_rangefinder(st)
         elif new is S.COARSE_APPROACH:
             self.filter.reset()
             for p in self._confirm:
@@ -558,6 +562,7 @@ class MissionRunner:
         prior = self._prior(cam_id)
         close_phase = self.machine.state in (S.FINE_APPROACH, S.GRASP_READY)
         allow_cut = close_phase and self.p.plane_fit and self._fit_hint is not None
+        self._plane_meas = None
 
         def work() -> tuple[Detection | None, TargetEstimate | Any, float, int, bool]:
             t0 = time.perf_counter()
@@ -618,6 +623,14 @@ class MissionRunner:
         """Log one processed frame and feed its estimate to the confirmation, the filter,
         the camera choice and the grasp check (loop thread)."""
         self.perception_ms.append(ms)
+        if (self._plane_meas is not None and est
+                and self._plane_meas[4] <= self.p.plane_max_cost):
+            z, std, t_ns, rng_m, cost, region = self._plane_meas
+            ok = self.plane.update(z, std, t_ns)
+            self.log.write("plane", camera=cam_id, measured_m=z, std_m=std, accepted=ok,
+                           frame_t_ns=t_ns, range_m=rng_m, cost=cost, region=region,
+                           offset_m=self.plane.offset_m, offset_std_m=self.plane.std_m())
+        self._plane_meas = None
         self._processed[cam_id] += 1
         self._since_reset[cam_id] += 1
         t = self._t_s()
@@ -694,8 +707,9 @@ class MissionRunner:
     def _grasp_stability(self, h_err: float, dist: float, slow: bool = True) -> int:
         """Frames counted towards ``grasp_stable_frames``: consecutive frames with the tool
         point within ``grasp_hold_factor`` x the tolerance (wind makes the hover jitter by a
-        few cm) whose running mean and latest value are within the tolerance, in the descent
-        phase; 0 resets."""
+        few cm) whose latest value is within the tolerance and whose running mean is within
+        ``grasp_accept_fraction`` x the tolerance (the rest is the margin for the estimate's
+        own error), in the descent phase; 0 resets."""
         tol = self.m.grasp_tolerance_m
         near = (self._fine_phase == "descend" and slow
                 and h_err <= self.p.grasp_hold_factor * tol
@@ -708,7 +722,8 @@ class MissionRunner:
         recent = list(self._grasp_window)[-n:]
         h_mean = float(np.mean([h for h, _ in recent]))
         d_mean = float(np.mean([d for _, d in recent]))
-        inside = (h_mean <= tol and abs(d_mean - self.m.grasp_distance_m) <= tol
+        accept = self.p.grasp_accept_fraction * tol  # margin for the estimate's own error
+        inside = (h_mean <= accept and abs(d_mean - self.m.grasp_distance_m) <= accept
                   and h_err <= tol and abs(dist - self.m.grasp_distance_m) <= tol)
         return len(self._grasp_window) if inside else min(len(self._grasp_window), n - 1)
 
@@ -729,9 +744,11 @@ class MissionRunner:
             # a colour region is the whole silhouette: the top and the shaded sides share the
             # target's chromaticity (not the detector's region of the earlier views)
             region_hint = "box"
+        t_ns = view.timestamp_ns
+        offset_m = self.plane.offset_m if self.p.plane_offset else 0.0
         fit = fit_on_top_plane(m, cam, det.center_px, det.corners_px, self.cfg.target,
-                               yaw_hint_deg=yaw_hint, region_hint=region_hint,
-                               iterations=8 if cut else 4)
+                               ground_down_m=offset_m, yaw_hint_deg=yaw_hint,
+                               region_hint=region_hint, iterations=8 if cut else 4)
         if fit is not None and not cut and fit.cost <= self.p.plane_fit_max_cost and close_phase:
             self._fit_hint = (fit.yaw_deg, fit.region)
         if fit is None or fit.cost > self.p.plane_fit_max_cost:
@@ -747,9 +764,17 @@ class MissionRunner:
         std = rng * math.radians(self.p.plane_fit_angular_std_deg) / sin_dep
         if self.p.size_range and close_phase and fit.size_ratio > 0:
             # range from the apparent size (known target, 1/range) fused with the plane's
-            # range (the vehicle's altitude estimate): both along the same ray
-            s_plane = self.p.altitude_std_m / sin_dep
+            # range (the measured plane, or the vehicle's altitude estimate): same ray. A cut
+            # view's size is compared with the model clipped to the image like the detection.
+            plane_std = (self.plane.std_m(t_ns) if self.p.plane_offset
+                         else self.p.altitude_std_m)
+            s_plane = plane_std / sin_dep
             s_size = self.p.size_std_fraction * rng
+            if self.p.plane_offset and self.p.plane_from_size and not cut:
+                # the plane this view measures: the size-only range along the same ray
+                down_m = float(cam.t[2] + d[2] / fit.size_ratio)
+                self._plane_meas = (down_m + float(self.cfg.target.height_m),
+                                    s_size * sin_dep, t_ns, rng, fit.cost, fit.region)
             w = s_plane**2 / (s_plane**2 + s_size**2)
             k = 1.0 + w * (1.0 / fit.size_ratio - 1.0)
             d = d * k
@@ -774,7 +799,8 @@ class MissionRunner:
         the vehicle's own altitude estimate)."""
         if self.p.vertical_reference == "estimate":
             return (float(p[0]), float(p[1]), float(p[2]))
-        plane = -float(self.cfg.target.height_m)
+        plane = -float(self.cfg.target.height_m) + (self.plane.offset_m if self.p.plane_offset
+                                                    else 0.0)
         if model is not None and state is not None:
             pose = camera_pose_ned(model, state.position_ned_m, state.attitude_q)
             d = np.asarray(p, dtype=np.float64) - pose.t
@@ -1153,6 +1179,7 @@ class MissionRunner:
     async def _telemetry_loop(self) -> None:
         period = 0.02
         last_log = 0
+        last_range_ns = -1
         while not self._stopping:
             vs = self.vehicle.state()
             now = self.clock.now_ns()
@@ -1165,19 +1192,55 @@ class MissionRunner:
                 self._link_lost_since_ns = None
             if self.on_telemetry is not None:
                 self.on_telemetry(vs)
+            if vs.timestamp_ns != last_range_ns:
+                last_range_ns = vs.timestamp_ns
+                self._use_rangefinder(vs)
             if now - last_log >= 200_000_000:
                 last_log = now
                 self.log.write("telemetry", position_ned_m=vs.position_ned_m,
                                velocity_ned_mps=vs.velocity_ned_mps, yaw_deg=round(vs.yaw_deg, 2),
                                mode=vs.flight_mode, armed=vs.armed, in_air=vs.in_air,
                                battery=vs.battery_remaining, link_ok=vs.link_ok,
-                               gps_fix=vs.gps_fix, state=self.machine.state.value)
+                               gps_fix=vs.gps_fix, state=self.machine.state.value,
+                               distance_to_ground_m=vs.distance_to_ground_m,
+                               plane_offset_m=round(self.plane.offset_m, 4),
+                               plane_offset_std_m=round(self.plane.std_m(vs.timestamp_ns), 4))
             events = self.vehicle.events()
             for ev in list(events)[self._events_seen:]:
                 self.log.write("event", source="vehicle", event_kind=ev.kind, text=ev.text,
                                data=ev.data, event_t_ns=ev.timestamp_ns)
             self._events_seen = len(events)
             await self.clock.sleep(period)
+
+    def _report_rangefinder(self, vs: VehicleState) -> None:
+        """Once airborne: say whether the target's plane will be measured (log + warnings)."""
+        if self.p.rangefinder == "off" or not self.p.plane_offset:
+            text = "rangefinder not used (mission.params): the grasp height follows the " \
+                   "vehicle's altitude estimate"
+        elif vs.distance_to_ground_m is None:
+            text = "no downward rangefinder reading in the telemetry: the grasp height " \
+                   "follows the vehicle's altitude estimate (docs/mission.md)"
+            self.failsafe_warnings.append(text)
+        else:
+            text = f"rangefinder: {vs.distance_to_ground_m:.2f} m to the ground"
+        self.log.write("event", source="mission", text=text)
+
+    def _use_rangefinder(self, vs: VehicleState) -> None:
+        """A downward distance reading measures where the ground is *in the vehicle's estimated
+        frame* (estimated down + range x cos tilt): the plane offset the visual fits need, free
+        of the altitude estimate's drift (flat ground between the vehicle and the target)."""
+        d = vs.distance_to_ground_m
+        if (d is None or not self.p.plane_offset or self.p.rangefinder == "off" or not vs.in_air
+                or self.machine.state not in (S.COARSE_APPROACH, S.FINE_APPROACH,
+                                              S.GRASP_READY)):
+            return
+        w, x, y, _z = vs.attitude_q
+        cos_tilt = 1.0 - 2.0 * (x * x + y * y)
+        if not math.isfinite(d) or cos_tilt < 0.5 or d == self._last_range_m:
+            return  # a repeated value is the same sample (telemetry outpaces the sensor)
+        self._last_range_m = d
+        self.plane.update(vs.position_ned_m[2] + d * cos_tilt, self.p.rangefinder_std_m,
+                          vs.timestamp_ns)
 
     # -- main ----------------------------------------------------------------------------------
     async def run(self) -> MissionResult:

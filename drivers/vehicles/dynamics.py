@@ -276,6 +276,33 @@ class EstimateModel:
             d[2] += v[2] * dt_s
 
 
+class RangefinderParams(BaseModel):
+    """A downward distance sensor (lidar such as a LightWare or TFmini, PX4 ``DISTANCE_SENSOR``)
+    on the body's down axis at the body origin, over flat ground at home's height (the target
+    and distractors are not seen by the beam)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    enabled: bool = False
+    noise_std_m: _NonNeg = 0.01
+    min_range_m: _NonNeg = 0.1
+    max_range_m: _Pos = 12.0
+
+
+def rangefinder_reading_m(true_down_m: float, cos_tilt: float, params: RangefinderParams,
+                          noise: float) -> float | None:
+    """Range along the body's down axis to flat ground at ``down = 0`` for a body origin at
+    ``true_down_m`` (NED, negative above ground) whose down axis makes ``acos(cos_tilt)`` with
+    the vertical; ``noise`` is a standard normal draw. None when disabled, pointing at or
+    above the horizon, or outside the sensor's range."""
+    if not params.enabled or cos_tilt <= 0.1:
+        return None
+    r = -true_down_m / cos_tilt
+    if not params.min_range_m <= r <= params.max_range_m:
+        return None
+    return r + params.noise_std_m * noise
+
+
 # ---------------------------------------------------------------------------------------------
 # State and commands
 # ---------------------------------------------------------------------------------------------

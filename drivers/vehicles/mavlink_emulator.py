@@ -5,7 +5,8 @@ It answers the way PX4 v1.16 answered MAVSDK 4.1 in the recorded SITL traffic
 again on every change), COMMAND_ACK for every command (DO_SET_MODE acknowledged twice),
 SYS_STATUS with sensor and pre-arm bits, HOME_POSITION, GLOBAL_POSITION_INT,
 LOCAL_POSITION_NED (relative to an EKF origin a few decimetres from home, as on PX4),
-ATTITUDE(+_QUATERNION), EXTENDED_SYS_STATE, BATTERY_STATUS, GPS_RAW_INT, CURRENT_MODE, the
+ATTITUDE(+_QUATERNION), EXTENDED_SYS_STATE, BATTERY_STATUS, GPS_RAW_INT, CURRENT_MODE,
+DISTANCE_SENSOR (a downward rangefinder, when ``rangefinder.enabled``; encoded as PX4 SIH's), the
 mission protocol (upload, download, MISSION_CURRENT, MISSION_ITEM_REACHED re-sent at 1 Hz),
 DO_SET_MODE, DO_REPOSITION, takeoff/land/RTL, offboard SET_POSITION_TARGET_LOCAL_NED with
 PX4's offboard-loss failsafe (COM_OF_LOSS_T, COM_OBL_RC_ACT), DO_GRIPPER, the parameter protocol
@@ -41,11 +42,15 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 os.environ.setdefault("MAVLINK20", "1")
+import numpy as np  # noqa: E402
 from eaglemission.drivers.vehicles import px4  # noqa: E402
 from eaglemission.drivers.vehicles.dynamics import (  # noqa: E402
     DynamicsParams,
     KinematicState,
     MulticopterDynamics,
+    RangefinderParams,
+    _Normals,
+    rangefinder_reading_m,
 )
 from pydantic import BaseModel, ConfigDict, Field  # noqa: E402
 from pymavlink import mavutil  # noqa: E402,F401  (mavutil reads MAVLINK20 at import)
@@ -77,6 +82,7 @@ PX4_ONBOARD_RATES_HZ: dict[str, float] = {
     "HOME_POSITION": 0.5,
     "BATTERY_STATUS": 0.5,
     "CURRENT_MODE": 0.5,
+    "DISTANCE_SENSOR": 10.0,  # recorded 9.85 Hz; sent only with a rangefinder (config)
 }
 MSG_IDS: dict[str, int] = {name: getattr(M, f"MAVLINK_MSG_ID_{name}") for name in
                            [*PX4_ONBOARD_RATES_HZ, "AUTOPILOT_VERSION", "GPS_GLOBAL_ORIGIN"]}
@@ -88,9 +94,34 @@ IN_AIR = M.MAV_LANDED_STATE_IN_AIR
 TAKING_OFF = M.MAV_LANDED_STATE_TAKEOFF
 LANDING = M.MAV_LANDED_STATE_LANDING
 
+DISTANCE_NO_RETURN_CM = 65535
+"""UINT16_MAX: what PX4 SIH sends beyond the maximum range ("lightware lw20 behaviour"; also
+recorded after the landing of scenario a)."""
+DISTANCE_SENSOR_MAX_HZ = 50.0
+"""PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
+
 NAV_COMMANDS = frozenset({M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND,
                           M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LOITER_UNLIM,
                           M.MAV_CMD_NAV_LOITER_TIME})
+
+
+def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderParams,
+                       noise: float) -> tuple[int, int, int]:
+    """``(current_distance, min_distance, max_distance)`` of a DISTANCE_SENSOR message, in cm,
+    as PX4 v1.16 with SIH sends them (recorded in ``px4_sitl_tlogs``): the reading of
+    :func:`~eaglemission.drivers.vehicles.dynamics.rangefinder_reading_m` truncated to whole cm
+    (PX4 assigns ``metres * 1e2f`` to a uint16); beyond the maximum range or with the beam at
+    the horizon, :data:`DISTANCE_NO_RETURN_CM`; below the minimum (on the ground) the geometric
+    range, which is outside ``[min, max]`` -- PX4 never withholds a reading, the receiver checks
+    the range."""
+    min_cm = int(round(params.min_range_m * 100.0))
+    max_cm = int(round(params.max_range_m * 100.0))
+    r = rangefinder_reading_m(true_down_m, cos_tilt, params, noise)
+    if r is not None:
+        return min(DISTANCE_NO_RETURN_CM - 1, max(0, int(r * 100.0))), min_cm, max_cm
+    if cos_tilt <= 0.1 or -true_down_m / cos_tilt > params.max_range_m:
+        return DISTANCE_NO_RETURN_CM, min_cm, max_cm
+    return max(0, min(min_cm - 1, int(-true_down_m / cos_tilt * 100.0))), min_cm, max_cm
 
 
 def _int(value: float, default: int = 0) -> int:
@@ -126,6 +157,9 @@ class EmulatorConfig(BaseModel):
     landed_detect_s: Annotated[float, Field(ge=0, le=10)] = 1.0
     dynamics: DynamicsParams = Field(default_factory=DynamicsParams)
     """The vehicle model (the ``simulated`` plugin's); MPC_* parameters report its limits."""
+    rangefinder: RangefinderParams = Field(default_factory=RangefinderParams)
+    """A downward distance sensor (the ``simulated`` plugin's): DISTANCE_SENSOR from the TRUE
+    pose, seeded noise; disabled by default (then no DISTANCE_SENSOR, as PX4 without one)."""
     params: dict[str, float] = Field(default_factory=dict)
     """Overrides of PX4 parameters (names from ``px4.DEFAULT_PARAMS``)."""
     sysid: Annotated[int, Field(ge=1, le=255)] = 1
@@ -170,6 +204,7 @@ class EmulatorSnapshot:
     mission_current: int
     mission_count: int
     offboard_setpoint: tuple[float, float, float, float] | None
+    true_attitude_q: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -350,6 +385,9 @@ class Px4Emulator:
         self._last_sent: dict[str, float] = {}
         self._last_reached_send = -math.inf
         self._hb_dirty = False
+        self._rangefinder_noise = _Normals(np.random.default_rng(
+            np.random.SeedSequence([cfg.seed, 0x52F])))  # the simulated vehicle's stream
+        self._rangefinder_lost_until = -1.0
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> Px4Emulator:
@@ -433,6 +471,12 @@ class Px4Emulator:
         with self._lock:
             self._gps_lost_until = self._t + float(duration_s)
 
+    def inject_rangefinder_loss(self, duration_s: float) -> None:
+        """The distance sensor stops publishing for ``duration_s`` emulator seconds (PX4 then
+        sends no DISTANCE_SENSOR: its stream only forwards new samples)."""
+        with self._lock:
+            self._rangefinder_lost_until = self._t + float(duration_s)
+
     def set_battery_fraction(self, fraction: float) -> None:
         """Set the remaining battery (0..1); crossing BAT_*_THR warns / acts as PX4 does."""
         with self._lock:
@@ -474,7 +518,7 @@ class Px4Emulator:
                 yaw_deg=e.yaw_deg, battery_remaining=self.battery, gps_ok=self._gps_ok(),
                 failsafe=self.failsafe, gripper=self.gripper,
                 mission_current=self._mission.current, mission_count=len(self._mission.items),
-                offboard_setpoint=sp)
+                offboard_setpoint=sp, true_attitude_q=s.attitude_q)
 
     @property
     def sim_time_s(self) -> float:
@@ -670,6 +714,21 @@ class Px4Emulator:
         elif name == "CURRENT_MODE":
             msg = M.MAVLink_current_mode_message(0, px4.custom_mode(self.mode),
                                                  px4.custom_mode(self.intended_mode))
+        elif name == "DISTANCE_SENSOR":
+            rf = self.config.rangefinder
+            if not rf.enabled or self._t < self._rangefinder_lost_until:
+                return  # PX4 streams DISTANCE_SENSOR only while a sensor publishes
+            tr = self.dyn.truth()
+            q = tr.attitude_q  # body z in NED: cos(tilt) = 1 - 2 (x^2 + y^2)
+            cos_tilt = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
+            cur, lo, hi = distance_sensor_cm(tr.position_ned_m[2], cos_tilt, rf,
+                                             self._rangefinder_noise.next())
+            # Recorded PX4 v1.16 SIH: type LASER (0), id 0, orientation PITCH_270 (downward),
+            # covariance 0 (SIH's variance is 0: unknown), signal_quality 0 (SIH's -1: unknown),
+            # no FOV, quaternion zeros.
+            msg = M.MAVLink_distance_sensor_message(
+                t_ms, lo, hi, cur, M.MAV_DISTANCE_SENSOR_LASER, 0,
+                M.MAV_SENSOR_ROTATION_PITCH_270, 0, 0.0, 0.0, [0.0, 0.0, 0.0, 0.0], 0)
         elif name == "AUTOPILOT_VERSION":
             caps = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                     | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -888,6 +947,8 @@ class Px4Emulator:
             self._intervals[name] = max(interval_us * 1e-6, 1.0 / 250.0)
         else:
             return M.MAV_RESULT_DENIED
+        if name == "DISTANCE_SENSOR":  # PX4 streams a sensor sample once: no faster than it
+            self._intervals[name] = max(self._intervals[name], 1.0 / DISTANCE_SENSOR_MAX_HZ)
         # PX4 sends a stream once the new interval has elapsed since its last message, so a
         # faster rate takes effect at once.
         if math.isfinite(self._intervals[name]):

@@ -18,6 +18,12 @@ task starts, unsubscribed in its ``finally``) and caches the latest values; fast
 (position, attitude) build a :class:`~eaglemission.types.VehicleState` appended to a ~2 s
 :class:`~eaglemission.telemetry.TelemetryHistory` for :meth:`MavsdkVehicle.state_at`.
 
+Distance sensor: ``Telemetry.distance_sensor`` (DISTANCE_SENSOR) fills
+``VehicleState.distance_to_ground_m`` only for a downward sensor (MAV_SENSOR_ROTATION_PITCH_270,
+which MAVSDK 4.1 reports as ``orientation.pitch_deg == 270``) with a reading inside its
+``[minimum, maximum]`` (PX4 sends out-of-range readings too: 655.35 m beyond the range, the
+geometric value below it) and at most ``distance_sensor_max_age_s`` old; None otherwise.
+
 Frames: PX4's LOCAL_POSITION_NED is relative to the EKF origin, which differs from home by
 decimetres. ``VehicleState.position_ned_m`` and :class:`~eaglemission.types.Setpoint` are
 relative to **home** (docs/conventions.md); the driver converts both ways with home's position
@@ -128,6 +134,11 @@ class MavsdkVehicleConfig(BaseModel):
     position_max_age_s: Annotated[float, Field(gt=0, le=10)] = 0.5
     """Offboard needs a local position sample at most this old."""
     gripper_instance: Annotated[int, Field(ge=0, le=255)] = 1
+    distance_sensor_rate_hz: Annotated[float, Field(ge=0, le=100)] = 20.0
+    """Requested DISTANCE_SENSOR rate (PX4: 10 Hz on an Onboard link, 0.5 Hz on a Normal one;
+    it never sends a sample twice); 0: do not ask."""
+    distance_sensor_max_age_s: Annotated[float, Field(gt=0, le=10)] = 0.5
+    """An older downward-range reading is not reported (``distance_to_ground_m`` None)."""
     confirm_modes: bool = True
     """After an accepted command, wait (bounded) until telemetry shows its mode/armed state
     (PX4 sends HEARTBEAT at 1 Hz, so up to ~1 s)."""
@@ -190,6 +201,33 @@ def step_towards(current: Setpoint, goal: Setpoint, dt_s: float, *, max_speed_mp
                     wrap_deg(current.yaw_deg + dyaw))
 
 
+def downward_range_m(sample: Any) -> float | None:
+    """The range of a MAVSDK ``Telemetry.DistanceSensor`` sample if the sensor looks down and
+    the reading is a valid one, else None.
+
+    MAVSDK 4.1 turns DISTANCE_SENSOR's ``orientation`` enum into Euler angles: PITCH_270
+    (downward) -> ``pitch_deg = 270``, roll and yaw 0; unknown orientations -> 0/0/0 (forward),
+    so only pitch 270 (or -90) with roll 0 counts. PX4 sends every sample, in range or not
+    (SIH: 65535 cm beyond the maximum): a reading outside ``[minimum, maximum]``, not positive
+    or not finite is no range.
+    """
+    o = getattr(sample, "orientation", None)
+    pitch, roll = (float(getattr(o, "pitch_deg", math.nan)), float(getattr(o, "roll_deg", math.nan)))
+    if not (math.isfinite(pitch) and math.isfinite(roll)):
+        return None
+    if abs(wrap_deg(pitch + 90.0)) > 1.0 or abs(wrap_deg(roll)) > 1.0:
+        return None
+    d = float(sample.current_distance_m)
+    lo, hi = float(sample.minimum_distance_m), float(sample.maximum_distance_m)
+    if not (math.isfinite(d) and d > 0.0):
+        return None
+    if math.isfinite(lo) and d < lo:
+        return None
+    if math.isfinite(hi) and d > hi:
+        return None
+    return d
+
+
 def parse_url(url: str) -> str:
     """Validate a MAVSDK connection URL and return its scheme (raises VehicleError)."""
     scheme, sep, rest = url.partition("://")
@@ -231,6 +269,8 @@ class _Cache:
     armable: bool = False
     progress: MissionProgress = MissionProgress(0, 0)
     last_sample_ns: int = 0
+    distance_m: float | None = None  # last downward reading inside the sensor's range
+    distance_t_ns: int = 0
 
 
 class MavsdkVehicle:
@@ -483,6 +523,7 @@ class MavsdkVehicle:
             "battery": self._on_battery,
             "health": self._on_health,
             "status_text": self._on_status,
+            "distance_sensor": self._on_distance,
         }
         loop = asyncio.get_running_loop()
         for name, handler in handlers.items():
@@ -590,6 +631,20 @@ class MavsdkVehicle:
         if "failsafe" in text.lower():
             self._event(EVENT_FAILSAFE, text, {"reason": "autopilot", "action": "see mode events"})
 
+    def _on_distance(self, t: int, d: Any) -> None:
+        c = self._c
+        c.distance_m = downward_range_m(d)
+        c.distance_t_ns = t
+
+    def _distance_at(self, t: int) -> float | None:
+        """The last downward reading if it is at most ``distance_sensor_max_age_s`` old at
+        ``t`` (and not from after ``t`` by more than that either)."""
+        c = self._c
+        if c.distance_m is None:
+            return None
+        age_ns = abs(t - c.distance_t_ns)
+        return c.distance_m if age_ns <= self.config.distance_sensor_max_age_s * 1e9 else None
+
     def _on_progress(self, t: int, p: Any) -> None:
         new = MissionProgress(int(p.current), int(p.total))
         if new != self._c.progress:
@@ -619,7 +674,9 @@ class MavsdkVehicle:
         g = geodetic_to_ned(c.home, c.geodetic)
         return (c.local_ned[0] - g[0], c.local_ned[1] - g[1], c.local_ned[2] - g[2])
 
-    def _build_state(self, t: int) -> VehicleState | None:
+    def _build_state(self, t: int, *, now_ns: int | None = None) -> VehicleState | None:
+        """The state at sample time ``t``; the range reading's age is judged at ``now_ns``
+        (default ``t``)."""
         c = self._c
         if c.local_ned is None:
             return None
@@ -639,7 +696,8 @@ class MavsdkVehicle:
             battery_remaining=c.battery if math.isfinite(c.battery) else 1.0,
             battery_voltage_v=c.voltage_v,
             position_valid=c.local_ok and (c.home is not None),
-            gps_fix=c.global_ok, link_ok=link_ok, armable=c.armable)
+            gps_fix=c.global_ok, link_ok=link_ok, armable=c.armable,
+            distance_to_ground_m=self._distance_at(t if now_ns is None else now_ns))
 
     def _append_state(self, t: int) -> None:
         s = self._build_state(t)
@@ -651,7 +709,9 @@ class MavsdkVehicle:
         fast = self.config.telemetry_rate_hz
         for name, hz in (("position", fast), ("position_velocity_ned", fast),
                          ("attitude_quaternion", fast), ("in_air", self.config.state_rate_hz),
-                         ("home", 1.0)):
+                         ("home", 1.0), ("distance_sensor", self.config.distance_sensor_rate_hz)):
+            if hz <= 0:
+                continue
             setter = functools.partial(getattr(tel, f"set_rate_{name}"), hz)
             try:
                 await self._bounded(f"set_rate_{name}()", setter)
@@ -673,7 +733,8 @@ class MavsdkVehicle:
     # ------------------------------------------------------------------------------------------
     def state(self) -> VehicleState:
         self._require("state()")
-        s = self._build_state(self._c.last_sample_ns or self._now_ns())
+        now = self._now_ns()
+        s = self._build_state(self._c.last_sample_ns or now, now_ns=now)
         if s is None:
             return VehicleState(timestamp_ns=self._now_ns(), position_ned_m=(0.0, 0.0, 0.0),
                                 velocity_ned_mps=(0.0, 0.0, 0.0), attitude_q=self._c.attitude_q,

@@ -39,7 +39,10 @@ import numpy as np
 from eaglemission.drivers.vehicles.dynamics import (
     DynamicsParams,
     MulticopterDynamics,
+    RangefinderParams,
+    _Normals,
     attitude_from_acceleration,
+    rangefinder_reading_m,
     wrap_deg,
 )
 from numpy.typing import NDArray
@@ -94,6 +97,7 @@ class SimulatedVehicleConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     dynamics: DynamicsParams = Field(default_factory=DynamicsParams)
+    rangefinder: RangefinderParams = Field(default_factory=RangefinderParams)
     seed: int | None = None  # None: simulation.seed (or 0)
     home_latitude_deg: Annotated[float, Field(ge=-90, le=90)] = 47.397742
     home_longitude_deg: Annotated[float, Field(ge=-180, le=180)] = 8.545594
@@ -155,6 +159,8 @@ class SimulatedVehicle:
         self._connected = False
         self._closed = False
         self._history = TelemetryHistory(span_s=cfg.history_span_s)
+        self._rangefinder_noise = _Normals(np.random.default_rng(
+            np.random.SeedSequence([self.seed, 0x52F])))
         self._events: list[VehicleEvent] = []
         # autopilot state
         self._mode = FlightMode.HOLD
@@ -983,6 +989,11 @@ class SimulatedVehicle:
         en, ee, ed = dyn.estimated_position()
         q = self._attitude(dyn.an, dyn.ae, dyn.ad, dyn.yaw_deg, on_ground=dyn.on_ground)
         gps = not self._gps_down()
+        rf = self.config.rangefinder
+        distance = None
+        if rf.enabled:  # the beam follows the TRUE pose; body z in NED: 1 - 2(x^2 + y^2)
+            cos_tilt = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
+            distance = rangefinder_reading_m(dyn.pd, cos_tilt, rf, self._rangefinder_noise.next())
         state = VehicleState(
             timestamp_ns=dyn.time_ns,
             position_ned_m=(en, ee, ed),
@@ -1001,6 +1012,7 @@ class SimulatedVehicle:
             gps_fix=gps,
             link_ok=True,
             armable=not self._armed and not self._not_armable_reason(),
+            distance_to_ground_m=distance,
         )
         self._history.append(state)
 

@@ -148,3 +148,34 @@ def test_record_writes_both_streams_and_telemetry(fast_config: MissionFile,
     for cam in ("wide", "narrow"):
         assert read_camera_model(rec, cam).camera_id == cam
         assert len(list((rec / cam / "frames").glob("*.png"))) > 3, cam  # both streams
+
+
+def _estimate_error_at(out, t_s: float) -> tuple[float, float, float]:
+    """The vehicle's own position estimate minus the truth at mission time ``t_s``."""
+    t_ns = out.t0_ns + int(t_s * 1e9)
+    est = min(out.estimated_trajectory, key=lambda s: abs(s[0] - t_ns))[1]
+    true = min(out.trajectory, key=lambda s: abs(s.timestamp_ns - t_ns)).position_ned_m
+    return tuple(e - t for e, t in zip(est, true))  # type: ignore[return-value]
+
+
+def test_rangefinder_removes_the_altitude_estimate_error_from_the_grasp_height(
+        fast_config: MissionFile) -> None:
+    """An altitude estimate 12 cm off (clipped, nearly constant): with the rangefinder the TRUE
+    grasp distance is within the band; without it the error goes straight into the height."""
+    vehicle = {"type": "simulated", "params": {
+        "seed": 3, "rangefinder": {"enabled": True, "noise_std_m": 0.01},
+        "dynamics": {"estimate_vertical_std_m": 1.0, "estimate_max_error_m": 0.12,
+                     "estimate_correlation_time_s": 1.0e6}}}
+    cfg = variant(fast_config, vehicle=vehicle,
+                  simulation={"wind_ne_mps": (0.0, 0.0), "mount_error_deg": 0.0,
+                              "focal_error_fraction": 0.0})
+    m = cfg.mission
+    with_rf = run_simulation(cfg, keep_log=False)
+    off = variant(cfg, mission={"params": {**m.params, "rangefinder": "off"}})
+    without = run_simulation(off, keep_log=False)
+    for out in (with_rf, without):
+        assert out.result.t_grasp_ready_s is not None, out.result.reason
+        err = _estimate_error_at(out, out.result.t_grasp_ready_s)
+        assert abs(err[2]) > 0.1, f"precondition: altitude estimate error {err[2]:.3f} m"
+    assert abs(with_rf.evaluation.grasp_distance_m - m.grasp_distance_m) <= m.grasp_tolerance_m
+    assert abs(without.evaluation.grasp_distance_m - m.grasp_distance_m) > m.grasp_tolerance_m

@@ -1,6 +1,9 @@
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import pytest
 from eaglemission.missions.filter import FilterConfig, TargetFilter
 
 
@@ -42,3 +45,34 @@ def test_empty_filter_and_bad_input() -> None:
 
     with pytest.raises(ValueError):
         f.update((1.0, float("nan"), 0.0), 0.1, 0)
+
+
+def test_plane_offset_filter_tracks_a_drifting_plane_and_gates_outliers() -> None:
+    from eaglemission.missions.filter import PlaneOffsetFilter
+
+    rng = np.random.RandomState(11)
+    f = PlaneOffsetFilter(prior_std_m=0.04, process_noise_mps=0.01)
+    assert f.offset_m == 0.0 and f.std_m() == pytest.approx(0.04)
+    truth = 0.09  # the altitude estimate is 9 cm off
+    t_ns = 0
+    for _ in range(200):  # 20 Hz rangefinder-like readings for 10 s
+        t_ns += 50_000_000
+        assert f.update(truth + rng.normal(0, 0.01), 0.01, t_ns)
+    assert f.offset_m == pytest.approx(truth, abs=0.005)
+    settled = f.std_m(t_ns)
+    assert settled < 0.005
+    # the uncertainty grows while no reading arrives (random walk)
+    assert f.std_m(t_ns + 10_000_000_000) == pytest.approx(math.hypot(settled, 0.01 * 10**0.5))
+    # a reading of the target's top (15 cm above the ground) is an outlier: gated out
+    assert not f.update(truth - 0.15, 0.01, t_ns + 50_000_000)
+    assert f.offset_m == pytest.approx(truth, abs=0.005)
+    # the plane drifts: followed
+    for _ in range(200):
+        t_ns += 50_000_000
+        truth += 0.0002
+        f.update(truth + rng.normal(0, 0.01), 0.01, t_ns)
+    assert f.offset_m == pytest.approx(truth, abs=0.01)
+    with pytest.raises(ValueError, match="offset_m"):
+        f.update(math.nan, 0.01, t_ns)
+    with pytest.raises(ValueError, match="prior_std_m"):
+        PlaneOffsetFilter(prior_std_m=0.0, process_noise_mps=0.01)
