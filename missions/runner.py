@@ -392,7 +392,8 @@ class MissionRunner:
         self._route_s = 0.0
         self._route = [(w.north_m, w.east_m) for w in cfg.mission.route]
         self._route_len = gd.route_length_m(self._route)
-        self._fresh: tuple[float, float] | None = None  # (wall time of frame arrival, age s)
+        # (wall time of the fresh estimate's frame at mid-exposure, extra age s)
+        self._fresh: tuple[float, float] | None = None
         self._goal_ok = True
         self._command_failed = ""
         self._offboard_since_ns = 0
@@ -513,7 +514,11 @@ class MissionRunner:
             except (errors.CameraError, TimeoutError) as exc:
                 self.log.write("event", source=cam_id, text=f"grab failed: {exc}")
                 continue
-            wall = time.perf_counter()
+            # wall-clock time of the frame's mid-exposure: arrival minus the frame's age then
+            # (virtual time stands still while the camera renders: age 0)
+            age_s = 0.0 if _is_virtual() else max(
+                0.0, (self.clock.now_ns() - frame.timestamp_ns) * 1e-9)
+            wall = time.perf_counter() - age_s
             self._last_frame_ns[cam_id] = self.clock.now_ns()
             if self.on_frame is not None:
                 self.on_frame(frame)
@@ -685,8 +690,7 @@ class MissionRunner:
             if accepted and estimator is self.fine and not est.source.startswith("fallback"):
                 self._fine_estimates += 1
             if accepted:
-                self._fresh = (wall, max(0.0, (self.clock.now_ns() - frame.timestamp_ns) * 1e-9)
-                               if not _is_virtual() else 0.0)
+                self._fresh = (wall, 0.0)
                 self._wake_setpoint.set()
         # switching logic from the wide image (coarse approach) and the predicted footprint
         filt = self.filter.state(frame.timestamp_ns)
