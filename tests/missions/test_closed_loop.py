@@ -179,3 +179,10 @@ def test_rangefinder_removes_the_altitude_estimate_error_from_the_grasp_height(
         assert abs(err[2]) > 0.1, f"precondition: altitude estimate error {err[2]:.3f} m"
     assert abs(with_rf.evaluation.grasp_distance_m - m.grasp_distance_m) <= m.grasp_tolerance_m
     assert abs(without.evaluation.grasp_distance_m - m.grasp_distance_m) > m.grasp_tolerance_m
+    assert not any("rangefinder" in w for w in with_rf.result.failsafe_warnings)
+    # no sensor on the vehicle: the same outcome as "off", and the run says why
+    no_sensor = variant(cfg, vehicle={**vehicle, "params": {**vehicle["params"],
+                                                            "rangefinder": {"enabled": False}}})
+    out = run_simulation(no_sensor, keep_log=False)
+    assert any("no downward rangefinder" in w for w in out.result.failsafe_warnings)
+    assert abs(out.evaluation.grasp_distance_m - m.grasp_distance_m) > m.grasp_tolerance_m
