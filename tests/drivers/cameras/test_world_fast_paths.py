@@ -83,3 +83,40 @@ def test_copy_to_writes_into_a_view():
     mask[2:6, 3:9] = 1
     cv2.copyTo(np.full_like(roi, 9), mask, roi)
     assert (img[7:11, 13:19] == 9).all() and img.sum() == 9 * 3 * 24
+
+
+def _clip_polygon_reference(poly, normal, offset):
+    """Sutherland-Hodgman as first written: every vertex through the loop."""
+    if len(poly) == 0:
+        return poly
+    out = []
+    d = poly @ normal - offset
+    n = len(poly)
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        da, db = d[i], d[(i + 1) % n]
+        if da >= 0:
+            out.append(a)
+        if (da >= 0) != (db >= 0):
+            s = da / (da - db)
+            out.append(a + s * (b - a))
+    return np.asarray(out, dtype=np.float64).reshape(-1, poly.shape[1])
+
+
+def test_clip_polygon_shortcuts_equal_the_loop():
+    """Polygons wholly kept or wholly clipped skip the vertex loop: same arrays as the loop
+    (and partly clipped ones still go through it)."""
+    rng = np.random.RandomState(5)
+    kinds = {"all": 0, "none": 0, "part": 0}
+    for _ in range(600):
+        k = int(rng.choice([2, 3]))
+        poly = rng.normal(0, 1, (int(rng.randint(3, 9)), k))
+        normal = rng.normal(0, 1, k)
+        offset = float(rng.normal(0, 2.0))
+        d = poly @ normal - offset
+        kinds["all" if (d >= 0).all() else "none" if (d < 0).all() else "part"] += 1
+        a = world_mod.clip_polygon(poly, normal, offset)
+        b = _clip_polygon_reference(poly, normal, offset)
+        assert a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b)
+        assert a is not poly
+    assert min(kinds.values()) >= 50, kinds
