@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from eaglemission.kernels import lazy_kernel
 from eaglemission.types import EstimationFailed, Mat3, PoseEstimate, Vec3
 
 __all__ = ["rpnp", "refine_pose", "reprojection_errors", "RPnPEstimator", "RPnPConfig"]
@@ -416,32 +417,9 @@ def rpnp(
     return result
 
 
-_KERNEL: list[Any] = []
-
-
-def _kernel() -> Any:
-    """The compiled kernel, or None when numba is not importable."""
-    if not _KERNEL:
-        try:
-            from eaglemission.estimators._rpnp_kernel import rpnp_core
-        except ImportError:  # pragma: no cover - numba is a dependency
-            rpnp_core = None
-        _KERNEL.append(rpnp_core)
-    return _KERNEL[0]
-
-
-_REFINE_KERNEL: list[Any] = []
-
-
-def _refine_kernel() -> Any:
-    """The compiled refinement, or None when numba is not importable."""
-    if not _REFINE_KERNEL:
-        try:
-            from eaglemission.estimators._rpnp_kernel import refine_pose_core
-        except ImportError:  # pragma: no cover - numba is a dependency
-            refine_pose_core = None
-        _REFINE_KERNEL.append(refine_pose_core)
-    return _REFINE_KERNEL[0]
+# the compiled RPnP and refinement (loaded on first use; None: numpy reference)
+_kernel = lazy_kernel("eaglemission.estimators._rpnp_kernel", "rpnp_core")
+_refine_kernel = lazy_kernel("eaglemission.estimators._rpnp_kernel", "refine_pose_core")
 
 
 _STATUS = {

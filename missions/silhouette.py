@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from eaglemission.geometry import CameraModel, Pose
+from eaglemission.kernels import lazy_kernel
 
 REGIONS = ("top", "box")
 
@@ -300,18 +301,8 @@ def colour_mask_numpy(image_bgr: np.ndarray, step: int, target_chroma: np.ndarra
     return ((dist <= tolerance) & (total >= min_brightness)).astype(np.uint8)
 
 
-_COLOUR_KERNEL: list[Any] = []
-
-
-def _colour_kernel() -> Any:
-    """The compiled mask, or None when numba is not importable."""
-    if not _COLOUR_KERNEL:
-        try:
-            from eaglemission.missions._colour_kernel import colour_mask
-        except ImportError:  # pragma: no cover - numba is a dependency
-            colour_mask = None
-        _COLOUR_KERNEL.append(colour_mask)
-    return _COLOUR_KERNEL[0]
+# the compiled colour mask (loaded on first use; None: colour_mask_numpy)
+_colour_kernel = lazy_kernel("eaglemission.missions._colour_kernel", "colour_mask")
 
 
 def _components(mask: np.ndarray) -> tuple[int, np.ndarray, tuple[int, int], np.ndarray,
