@@ -79,6 +79,13 @@ def quat_to_R(q: Sequence[float]) -> Mat3:
     )
 
 
+def down_axis_cos_tilt(q: Sequence[float]) -> float:
+    """Cosine of the angle between the body's down axis and the vertical for a unit attitude
+    quaternion ``(w, x, y, z)`` (body FRD -> NED): the NED down component of body z,
+    ``1 - 2 (x^2 + y^2)``. A downward range ``d`` spans ``d * cos_tilt`` vertically."""
+    return 1.0 - 2.0 * (float(q[1]) ** 2 + float(q[2]) ** 2)
+
+
 def R_to_quat(R: Mat3) -> Quat:
     """Rotation matrix to unit quaternion ``(w, x, y, z)`` with ``w >= 0``."""
     m = np.asarray(R, dtype=np.float64)

@@ -146,10 +146,11 @@ class ApproachConfig(BaseModel):
                                      "range from apparent size (focal error, segmentation)")
     altitude_std_m: float = Field(0.04, gt=0, description="1-sigma error of the vehicle's "
                                   "altitude estimate (sets the plane's range error)")
-    plane_offset: bool = Field(True, description="learn the height of the target's top in "
-                               "the vehicle's estimated frame from complete close views (range "
-                               "from apparent size) and fit later views on that plane, instead "
-                               "of trusting the altitude estimate (docs/mission.md)")
+    plane_offset: bool = Field(True, description="track the height of the target's top in "
+                               "the vehicle's estimated frame (measured by a downward "
+                               "rangefinder, optionally by apparent size) and fit every view on "
+                               "that plane, instead of trusting the altitude estimate "
+                               "(docs/mission.md)")
     plane_from_size: bool = Field(False, description="also measure the plane from complete "
                                   "close views' apparent size (off: measured worse than the "
                                   "altitude estimate alone, docs/mission.md)")

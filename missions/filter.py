@@ -148,9 +148,10 @@ class PlaneOffsetFilter:
     The vehicle's altitude estimate is off by a few centimetres and drifts slowly; every
     position found by intersecting a ray with the nominal plane inherits that error along the
     ray, which at the grasp pose (0.5 m range, 50 deg depression) moves the estimate by ~1.3x
-    the altitude error down *and* along the approach. Complete close views measure the plane
+    the altitude error down *and* along the approach. A downward rangefinder measures the plane
+    (estimated down + range x cos tilt, flat ground), and optionally complete close views
     through the target's apparent size (range = plane range / size ratio); this scalar
-    random-walk Kalman filter fuses them, and the plane fits of later (cut) views use its value.
+    random-walk Kalman filter fuses them, and the plane fits of every view use its value.
     """
 
     def __init__(self, prior_std_m: float, process_noise_mps: float, gate_sigma: float = 4.0

@@ -51,7 +51,7 @@ from eaglemission.missions.silhouette import PlaneFit, colour_blob, fit_on_top_p
 
 from eaglemission import errors
 from eaglemission.config import MissionFile
-from eaglemission.geometry import CameraModel, camera_pose_ned
+from eaglemission.geometry import CameraModel, camera_pose_ned, down_axis_cos_tilt
 from eaglemission.interfaces.estimator import CameraView
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.safety import SafeVehicle
@@ -1241,8 +1241,7 @@ class MissionRunner:
                 or self.machine.state not in (S.COARSE_APPROACH, S.FINE_APPROACH,
                                               S.GRASP_READY)):
             return
-        w, x, y, _z = vs.attitude_q
-        cos_tilt = 1.0 - 2.0 * (x * x + y * y)
+        cos_tilt = down_axis_cos_tilt(vs.attitude_q)
         if not math.isfinite(d) or cos_tilt < 0.5 or d == self._last_range_m:
             return  # a repeated value is the same sample (telemetry outpaces the sensor)
         self._last_range_m = d

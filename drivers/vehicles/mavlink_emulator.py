@@ -57,7 +57,13 @@ from pymavlink import mavutil  # noqa: E402,F401  (mavutil reads MAVLINK20 at im
 from pymavlink.dialects.v20 import development as mavlink  # noqa: E402
 
 from eaglemission.errors import ConfigError  # noqa: E402
-from eaglemission.geometry import R_to_euler, geodetic_to_ned, ned_to_geodetic, quat_to_R  # noqa: E402
+from eaglemission.geometry import (  # noqa: E402
+    R_to_euler,
+    down_axis_cos_tilt,
+    geodetic_to_ned,
+    ned_to_geodetic,
+    quat_to_R,
+)
 from eaglemission.types import FlightMode, GeoPoint, Setpoint  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -719,9 +725,8 @@ class Px4Emulator:
             if not rf.enabled or self._t < self._rangefinder_lost_until:
                 return  # PX4 streams DISTANCE_SENSOR only while a sensor publishes
             tr = self.dyn.truth()
-            q = tr.attitude_q  # body z in NED: cos(tilt) = 1 - 2 (x^2 + y^2)
-            cos_tilt = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
-            cur, lo, hi = distance_sensor_cm(tr.position_ned_m[2], cos_tilt, rf,
+            cur, lo, hi = distance_sensor_cm(tr.position_ned_m[2],
+                                             down_axis_cos_tilt(tr.attitude_q), rf,
                                              self._rangefinder_noise.next())
             # Recorded PX4 v1.16 SIH: type LASER (0), id 0, orientation PITCH_270 (downward),
             # covariance 0 (SIH's variance is 0: unknown), signal_quality 0 (SIH's -1: unknown),

@@ -51,7 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.config import SimulationConfig
 from eaglemission.errors import ModeChangedExternally, VehicleError
-from eaglemission.geometry import geodetic_to_ned, ned_to_geodetic
+from eaglemission.geometry import down_axis_cos_tilt, geodetic_to_ned, ned_to_geodetic
 from eaglemission.telemetry import TelemetryHistory
 from eaglemission.types import (
     XYZ,
@@ -991,9 +991,9 @@ class SimulatedVehicle:
         gps = not self._gps_down()
         rf = self.config.rangefinder
         distance = None
-        if rf.enabled:  # the beam follows the TRUE pose; body z in NED: 1 - 2(x^2 + y^2)
-            cos_tilt = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
-            distance = rangefinder_reading_m(dyn.pd, cos_tilt, rf, self._rangefinder_noise.next())
+        if rf.enabled:  # the beam follows the TRUE pose
+            distance = rangefinder_reading_m(dyn.pd, down_axis_cos_tilt(q), rf,
+                                             self._rangefinder_noise.next())
         state = VehicleState(
             timestamp_ns=dyn.time_ns,
             position_ned_m=(en, ee, ed),

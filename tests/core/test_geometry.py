@@ -17,6 +17,7 @@ from eaglemission.geometry import (
     angle_between_rotations_deg,
     body_pose_ned,
     camera_pose_ned,
+    down_axis_cos_tilt,
     euler_to_quat,
     euler_to_R,
     geodetic_to_ned,
@@ -201,3 +202,14 @@ def test_geodetic_round_trip():
 def test_pose_apply_shapes():
     p = Pose(euler_to_R(0, 0, 90), np.array([1.0, 2.0, 3.0]))
     np.testing.assert_allclose(p.apply([1.0, 0.0, 0.0]), [1.0, 3.0, 3.0], atol=1e-12)
+
+
+def test_down_axis_cos_tilt_is_the_down_component_of_body_z() -> None:
+    rng = np.random.RandomState(23)
+    for _ in range(50):
+        q = euler_to_quat(*rng.uniform(-60, 60, 2), rng.uniform(-180, 180))
+        body_z_ned = quat_to_R(q) @ np.array([0.0, 0.0, 1.0])
+        assert down_axis_cos_tilt(q) == pytest.approx(body_z_ned[2], abs=1e-12)
+    # a 10-deg roll or pitch tilts the down axis by 10 deg; yaw does not
+    assert down_axis_cos_tilt(euler_to_quat(10, 0, 75)) == pytest.approx(math.cos(math.radians(10)))
+    assert down_axis_cos_tilt(euler_to_quat(0, -10, -30)) == pytest.approx(math.cos(math.radians(10)))

@@ -25,8 +25,9 @@ from eaglemission.drivers.vehicles.wait import wait_until
 from mavsdk.plugins.telemetry import DistanceSensor, EulerAngle
 
 from eaglemission.clock import ManualClock
+from eaglemission.geometry import down_axis_cos_tilt as cos_tilt
 from eaglemission.geometry import ned_to_geodetic
-from eaglemission.types import FlightMode, GeoPoint, Quat, Setpoint
+from eaglemission.types import FlightMode, GeoPoint, Setpoint
 
 try:  # tests/ is not a package
     from emulator_support import flying_pair, scenario, wait_for
@@ -35,11 +36,6 @@ except ImportError:  # pragma: no cover
 
 M = mavlink
 RF = RangefinderParams(enabled=True, noise_std_m=0.01, min_range_m=0.1, max_range_m=12.0)
-
-
-def cos_tilt(q: Quat) -> float:
-    """cos of the angle between the body's down axis and the vertical (body z in NED)."""
-    return 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
 
 
 # ---------------------------------------------------------------------------------------------
