@@ -22,8 +22,10 @@ from eaglemission.drivers.cameras.world import SyntheticWorld
 from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
 from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.runner import plausible_size, select_detection
-from eaglemission.missions.sim import build_detector, run_simulation
+from eaglemission.missions.sim import run_simulation
 
+from eaglemission import registry
+from eaglemission.assembly import detector_params
 from eaglemission.config import MissionFile, load_config
 from eaglemission.types import Frame, VehicleState
 
@@ -33,8 +35,7 @@ def _with_detector(cfg: MissionFile, name: str | None, downscale: int | None) ->
     if name:
         data["detector"] = {"type": name, "params": {}}
     if downscale:
-        data["mission"] = {**data["mission"], "params": {**data["mission"].get("params", {}),
-                                                         "detector_downscale": downscale}}
+        data["detector"]["params"] = {**data["detector"]["params"], "downscale": downscale}
     return MissionFile.model_validate(data)
 
 
@@ -78,7 +79,8 @@ def detection_rate(cfg: MissionFile, *, target_free: bool = False) -> dict[str, 
         sim = sim.model_copy(update={"target_north_m": -30.0, "target_east_m": 0.0})
     world = SyntheticWorld(sim, cfg.target, extent_m=200)
     model = cfg.cameras.wide.to_model("wide")
-    det = build_detector(cfg, params, "wide")
+    det = registry.load("detectors", cfg.detector.type, detector_params(cfg, "wide"),
+                        camera_id="wide")
     stats: dict[str, list[int]] = {}
     t0 = 1_000_000_000
     for t_s, pos, q, phase in scripted_path(cfg, params.process_rate_hz):
@@ -119,7 +121,7 @@ def main() -> None:
     logging.basicConfig(level=logging.ERROR)
     cfg = _with_detector(load_config(args.config), args.detector, args.downscale)
     params = ApproachConfig.model_validate(dict(cfg.mission.params))
-    print(f"detector: {cfg.detector.type} (downscale {params.detector_downscale}), "
+    print(f"detector: {cfg.detector.type} {dict(cfg.detector.params)}, "
           f"process rate {params.process_rate_hz} Hz, frames "
           f"{cfg.cameras.wide.resolution_px[0]}x{cfg.cameras.wide.resolution_px[1]}")
     if not args.skip_flight:

@@ -260,8 +260,7 @@ def main() -> None:
     if args.detector:
         data["detector"] = {"type": args.detector, "params": {}}
     if args.downscale:
-        data["mission"] = {**data["mission"], "params": {
-            **data["mission"].get("params", {}), "detector_downscale": args.downscale}}
+        data["detector"]["params"] = {**data["detector"]["params"], "downscale": args.downscale}
     cfg = MissionFile.model_validate(data)
     if not args.skip_components:
         components(cfg)

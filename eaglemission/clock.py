@@ -9,9 +9,13 @@ deterministically. ``LoopClock`` reads the running loop's time, which is real or
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
+import contextvars
+import functools
 import selectors
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Coroutine
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
@@ -70,7 +74,10 @@ class LoopClock:
 
 
 class _VirtualSelector:
-    """Wraps the loop's selector: a timed wait becomes a jump of virtual time when idle."""
+    """Wraps the loop's selector: a timed wait becomes a jump of virtual time when idle, and
+    worker results are handed back one at a time, in submission order, only when the loop is
+    idle (nothing ready), so that a simulation interleaves the same way whatever the threads'
+    real timing."""
 
     def __init__(self, inner: selectors.BaseSelector, loop: VirtualTimeLoop) -> None:
         self._inner = inner
@@ -80,13 +87,18 @@ class _VirtualSelector:
         events = self._inner.select(0)
         if events or timeout == 0:
             return events
-        if self._loop.busy_workers > 0:
-            # A worker thread will wake us through the self-pipe; wait in real time, frozen
-            # virtual time (so a slow computation never looks like a timeout).
-            return self._inner.select(0.05 if timeout is None else min(timeout, 0.05))
+        loop = self._loop
+        if loop._workers:
+            # Frozen virtual time: wait (in real time) for the OLDEST worker only; a later one
+            # that finishes first waits its turn. The self-pipe wakes us when any finishes.
+            if not loop._workers[0][0].done():
+                events = self._inner.select(0.05)
+            if loop._workers[0][0].done():
+                loop._deliver_oldest()
+            return events
         if timeout is None:
             return self._inner.select(0.01)  # nothing scheduled: let real I/O arrive
-        self._loop._virtual_s += timeout
+        loop._virtual_s += timeout
         return []
 
     def __getattr__(self, name: str) -> Any:
@@ -96,26 +108,53 @@ class _VirtualSelector:
 class VirtualTimeLoop(asyncio.SelectorEventLoop):
     """Event loop with virtual time starting at ``start_s``.
 
-    Use :meth:`run_in_worker` (not ``asyncio.to_thread``) for blocking work so the loop knows
-    to wait for it instead of jumping time.
+    Blocking work goes to worker threads through :meth:`run_in_executor` (also what
+    ``asyncio.to_thread`` and :func:`run_blocking` use): virtual time stands still while any
+    worker runs, and results come back in submission order at idle points only, so a run is
+    deterministic given its inputs (docs/conventions.md, "Clock").
     """
 
     def __init__(self, start_s: float = 1.0) -> None:
         super().__init__()
         self._virtual_s = float(start_s)
-        self.busy_workers = 0
+        self._workers: deque[tuple[concurrent.futures.Future[Any], asyncio.Future[Any]]] = deque()
         self._selector = _VirtualSelector(self._selector, self)  # type: ignore[has-type,arg-type]
         self._clock_resolution = 1e-9
 
     def time(self) -> float:
         return self._virtual_s
 
+    @property
+    def busy_workers(self) -> int:
+        """Worker calls submitted and not yet handed back."""
+        return len(self._workers)
+
+    def run_in_executor(self, executor: Any, func: Any, *args: Any) -> Any:  # type: ignore[override]  # same contract as asyncio's, typed loosely
+        self._check_closed()  # type: ignore[attr-defined]
+        pool: concurrent.futures.Executor | None = executor or self._default_executor  # type: ignore[has-type]
+        if pool is None:
+            pool = concurrent.futures.ThreadPoolExecutor(thread_name_prefix="asyncio")
+            self._default_executor = pool
+        cf = pool.submit(func, *args)
+        af: asyncio.Future[Any] = self.create_future()
+        self._workers.append((cf, af))
+        cf.add_done_callback(lambda _f: self._write_to_self())  # type: ignore[attr-defined]
+        return af
+
+    def _deliver_oldest(self) -> None:
+        cf, af = self._workers.popleft()
+        if af.cancelled():
+            return
+        exc = cf.exception()
+        if exc is not None:
+            af.set_exception(exc)
+        else:
+            af.set_result(cf.result())
+
     async def run_in_worker(self, fn: Callable[..., T], *args: Any) -> T:
-        self.busy_workers += 1
-        try:
-            return await asyncio.to_thread(fn, *args)
-        finally:
-            self.busy_workers -= 1
+        ctx = contextvars.copy_context()
+        result: T = await self.run_in_executor(None, functools.partial(ctx.run, fn, *args))
+        return result
 
 
 async def run_blocking(fn: Callable[..., T], *args: Any) -> T:
@@ -124,6 +163,25 @@ async def run_blocking(fn: Callable[..., T], *args: Any) -> T:
     if isinstance(loop, VirtualTimeLoop):
         return await loop.run_in_worker(fn, *args)
     return await asyncio.to_thread(fn, *args)
+
+
+class BoundLoopClock:
+    """The clock of one event loop, readable from any thread (``loop.time()`` is a plain
+    read; :class:`LoopClock` needs the running loop and fails in a worker thread). On a normal
+    loop it is host monotonic time; on a :class:`VirtualTimeLoop`, virtual time."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+
+    @property
+    def virtual(self) -> bool:
+        return isinstance(self._loop, VirtualTimeLoop)
+
+    def now_ns(self) -> int:
+        return int(round(self._loop.time() * 1e9))
+
+    async def sleep(self, duration_s: float) -> None:
+        await asyncio.sleep(duration_s)
 
 
 def run_virtual(coro: Coroutine[Any, Any, T], *, start_s: float = 1.0) -> T:

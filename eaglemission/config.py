@@ -8,7 +8,9 @@ plugin's own ``Config`` model, found through the registry.
 
 from __future__ import annotations
 
+import copy
 import difflib
+import logging
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -100,6 +102,14 @@ class CameraSection(StrictModel):
 class CamerasSection(StrictModel):
     wide: CameraSection
     narrow: CameraSection
+
+
+class DetectorSection(PluginSection):
+    """The detector: one instance per camera, each built from ``params`` with that camera's
+    ``per_camera`` overrides merged in (e.g. ``per_camera: {narrow: {regions: {threshold:
+    otsu}}}``, the paper's adaptive threshold for the deep fovea)."""
+
+    per_camera: dict[Literal["wide", "narrow"], dict[str, Any]] = Field(default_factory=dict)
 
 
 class EstimatorsSection(StrictModel):
@@ -209,6 +219,11 @@ class SafetyConfig(StrictModel):
     low_battery_fraction: Fraction = 0.2
     low_battery_action: SafeAction = "return"
     offboard_watchdog_s: PosFloat = 0.5
+    on_interrupt: SafeAction = "return"
+    """What the first Ctrl-C / SIGTERM during ``eaglemission run`` commands (through the
+    envelope); a second signal exits at once."""
+    interrupt_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 120.0
+    """How long ``run`` waits for that action (landed, or the mode confirmed) before giving up."""
 
     @model_validator(mode="after")
     def _band(self) -> SafetyConfig:
@@ -252,7 +267,7 @@ class MissionFile(StrictModel):
 
     vehicle: PluginSection
     cameras: CamerasSection
-    detector: PluginSection
+    detector: DetectorSection
     estimators: EstimatorsSection
     target: TargetConfig
     tool_point_m: XYZm = (0.0, 0.0, 0.3)
@@ -421,8 +436,67 @@ def read_config_text(path: str | Path) -> str:
                           source=str(p)) from None
 
 
-def validate_mapping(data: Any, *, source: str = "<config>", check_plugins: bool = True) -> MissionFile:
-    """Validate a parsed YAML document; raise :class:`ConfigError` listing every problem."""
+def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
+    """Keys that moved, still read for one release: returns a migrated COPY of the parsed
+    document and one ``old: moved to new`` warning per moved key (the input is not changed)."""
+    if not isinstance(data, dict):
+        return data, []
+    warnings: list[str] = []
+    mission = data.get("mission")
+    params = mission.get("params") if isinstance(mission, dict) else None
+    detector = data.get("detector")
+    if not isinstance(params, dict) or not isinstance(detector, dict):
+        return data, warnings
+    moved = [k for k in ("detector_downscale", "narrow_threshold") if k in params]
+    if not moved:
+        return data, warnings
+    data = copy.deepcopy(data)
+    params = data["mission"]["params"]
+    det = data["detector"]
+    det_params = det.setdefault("params", {})
+    if "detector_downscale" in params:
+        value = params.pop("detector_downscale")
+        if isinstance(det_params, dict) and "downscale" not in det_params and \
+                _detector_has(det.get("type"), "downscale"):
+            det_params["downscale"] = value
+        warnings.append("mission.params.detector_downscale: moved to detector.params.downscale "
+                        "(read for this release; write it there)")
+    if "narrow_threshold" in params:
+        value = params.pop("narrow_threshold")
+        if value != "config" and _detector_has(det.get("type"), "regions"):
+            per = det.setdefault("per_camera", {})
+            narrow = per.setdefault("narrow", {}) if isinstance(per, dict) else {}
+            if isinstance(narrow, dict):
+                regions = narrow.setdefault("regions", {})
+                if isinstance(regions, dict):
+                    regions.setdefault("threshold", value)
+        warnings.append("mission.params.narrow_threshold: moved to "
+                        "detector.per_camera.narrow.regions.threshold (read for this release; "
+                        "write it there)")
+    return data, warnings
+
+
+def _detector_has(name: Any, field_name: str) -> bool:
+    from eaglemission import registry  # local: the registry validates plugin params with us
+
+    try:
+        cls = registry.get("detectors", str(name))
+    except PluginError:
+        return False
+    return field_name in getattr(cls.Config, "model_fields", {})  # type: ignore[attr-defined]
+
+
+def validate_mapping(data: Any, *, source: str = "<config>", check_plugins: bool = True,
+                     warnings: list[str] | None = None) -> MissionFile:
+    """Validate a parsed YAML document; raise :class:`ConfigError` listing every problem.
+    Moved keys are migrated (:func:`migrate_moved_keys`); their warnings go to ``warnings``
+    when given, else to the log."""
+    data, moved = migrate_moved_keys(data)
+    if warnings is not None:
+        warnings.extend(moved)
+    else:
+        for w in moved:
+            logging.getLogger(__name__).warning("%s: %s", source, w)
     if data is None:
         raise ConfigError("empty file: a mission needs the sections " + ", ".join(
             f for f, info in MissionFile.model_fields.items() if info.is_required()), source=source)
@@ -453,10 +527,22 @@ def plugin_sections(cfg: MissionFile) -> list[tuple[str, str, str, dict[str, Any
         ("cameras", "cameras.wide", cfg.cameras.wide.type, cfg.cameras.wide.params),
         ("cameras", "cameras.narrow", cfg.cameras.narrow.type, cfg.cameras.narrow.params),
         ("detectors", "detector", cfg.detector.type, cfg.detector.params),
+        *[("detectors", f"detector.per_camera.{cid}", cfg.detector.type,
+           merge_params(cfg.detector.params, over))
+          for cid, over in cfg.detector.per_camera.items()],
         ("estimators", "estimators.coarse", cfg.estimators.coarse.type, cfg.estimators.coarse.params),
         ("estimators", "estimators.fine", cfg.estimators.fine.type, cfg.estimators.fine.params),
         ("missions", "mission", cfg.mission.type, cfg.mission.params),
     ]
+
+
+def merge_params(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over`` merged in, nested mappings key by key (a new dict)."""
+    out = dict(base)
+    for k, v in over.items():
+        cur = out.get(k)
+        out[k] = merge_params(cur, v) if isinstance(v, Mapping) and isinstance(cur, Mapping) else v
+    return out
 
 
 def plugin_problems(cfg: MissionFile) -> list[str]:
@@ -468,21 +554,31 @@ def plugin_problems(cfg: MissionFile) -> list[str]:
             registry.validate_params(role, name, params, path=f"{path}.params")
         except ConfigError as exc:
             problems.extend(exc.problems)
+            continue
         except PluginError as exc:
             problems.append(f"{path}.type: {exc}")
+            continue
+        check = getattr(registry.get(role, name), "config_problems", None)
+        if callable(check) and ".per_camera." not in path:
+            try:
+                problems.extend(check(cfg, path))
+            except Exception as exc:  # a broken plugin check must not hide the others
+                problems.append(f"{path}: the plugin's check failed: {type(exc).__name__}: {exc}")
     return problems
 
 
-def load_config(path: str | Path | None = None, *, check_plugins: bool = True) -> MissionFile:
+def load_config(path: str | Path | None = None, *, check_plugins: bool = True,
+                warnings: list[str] | None = None) -> MissionFile:
     """Load and validate a mission file; ``None`` loads the embedded default
-    (``configs/sitl_synthetic.yaml``)."""
+    (``configs/sitl_synthetic.yaml``). Warnings (moved keys) go to ``warnings`` when given."""
     if path is None:
         text = resources.files("eaglemission.configs").joinpath(DEFAULT_CONFIG).read_text("utf-8")
         source = f"<embedded {DEFAULT_CONFIG}>"
     else:
         text = read_config_text(path)
         source = str(path)
-    cfg = validate_mapping(parse_yaml(text, source=source), source=source, check_plugins=check_plugins)
+    cfg = validate_mapping(parse_yaml(text, source=source), source=source,
+                           check_plugins=check_plugins, warnings=warnings)
     base = Path(path).resolve().parent if path is not None else None
     return resolve_relative_paths(cfg, base)
 

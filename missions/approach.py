@@ -228,6 +228,9 @@ class Snapshot:
     camera_failed: bool = False
     pilot_override: bool = False
     command_failed: str = ""
+    interrupt_reason: str = ""
+    """The operator asked for a stop (Ctrl-C / SIGTERM): the reason, "" if not."""
+    interrupt_action: str = "return"
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -320,7 +323,7 @@ def failsafe(state: MissionState, s: Snapshot, mission: Any, safety: Any,
              params: ApproachConfig) -> Abort | None:
     """The failsafe that applies in ``state`` (pure; first match in priority order).
 
-    Priority: link loss, GPS loss, low battery, pilot mode change, camera failure, geofence,
+    Priority: the operator's interrupt, link loss, GPS loss, low battery, pilot mode change, camera failure, geofence,
     refused command, state timeout, route end without target. On the ground (PREFLIGHT) the
     action is ``none``: the vehicle is never armed.
     """
@@ -331,6 +334,8 @@ def failsafe(state: MissionState, s: Snapshot, mission: Any, safety: Any,
     def act(a: FinalAction) -> FinalAction:
         return "none" if on_ground else a
 
+    if s.interrupt_reason:
+        return Abort(s.interrupt_reason, act(s.interrupt_action))  # type: ignore[arg-type]
     if s.link_lost_s > s.link_loss_timeout_s and not on_ground:
         return Abort(f"link lost for {s.link_lost_s:.1f} s", act(safety.link_loss_action))
     if not s.gps_ok and not on_ground:
@@ -430,35 +435,6 @@ def mermaid_diagram() -> str:
                  show_conditions=True, title="approach mission")
     text = model.get_graph().draw(None)  # type: ignore[attr-defined]
     return "\n".join(line.rstrip() for line in text.splitlines()).strip() + "\n"
-
-
-# ---------------------------------------------------------------------------------------------
-# The plugin
-# ---------------------------------------------------------------------------------------------
-class ApproachMission:
-    """Plugin ``approach``: flies the mission described by a :class:`MissionFile`.
-
-    Context: ``mission_config`` (the whole MissionFile), optional ``vehicle``, ``cameras``,
-    ``world``, ``log``, ``grasp_callback`` (built from the file when absent; see
-    :mod:`eaglemission.missions.runner`).
-    """
-
-    Config = ApproachConfig
-    description = ("approach-to-grasp: cruise, wide-camera coarse approach, narrow-camera "
-                   "RPnP fine approach, grasp-ready hold (paper Sec. 3.2)")
-
-    def __init__(self, config: ApproachConfig | None = None, *, mission_config: Any = None,
-                 **context: Any) -> None:
-        self.config = config or ApproachConfig()
-        self.mission_config = mission_config
-        self.context = context
-
-    async def run(self) -> Any:
-        from eaglemission.missions.runner import build_and_run
-
-        if self.mission_config is None:
-            raise ValueError("mission_config: the approach mission needs the MissionFile")
-        return await build_and_run(self.mission_config, params=self.config, **self.context)
 
 
 if __name__ == "__main__":  # regenerate the diagram: python -m eaglemission.missions.approach

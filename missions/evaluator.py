@@ -128,7 +128,7 @@ def _close(out: list[Violation], open_: dict[str, list[float]], kind: str, t: in
 
 
 def evaluate(result: Any, trajectory: Sequence[Any], cfg: MissionFile,
-             target_position_ned_m: Sequence[float], *, t0_ns: int,
+             target_position_ned_m: Sequence[float] | None, *, t0_ns: int,
              expected_action: str | None = None,
              tolerances: Tolerances = Tolerances()) -> Evaluation:
     """Judge one flight against the truth.
@@ -138,7 +138,8 @@ def evaluate(result: Any, trajectory: Sequence[Any], cfg: MissionFile,
     result : the mission's :class:`~eaglemission.missions.runner.MissionResult`
     trajectory : TRUE vehicle states (``timestamp_ns``, ``position_ned_m``,
         ``velocity_ned_mps``, ``attitude_q``, ``in_air``), time-ordered
-    target_position_ned_m : TRUE centre of the target's top face
+    target_position_ned_m : TRUE centre of the target's top face; None when no world knows it
+        (then the tool-point errors are the mission's own estimate at GRASP_READY)
     t0_ns : the mission start on the same clock (``result`` times are relative to it)
     expected_action : the safe action the configuration prescribes for this run's failure
         (``ended_safe`` checks the mission chose it), None to skip that check
@@ -147,10 +148,13 @@ def evaluate(result: Any, trajectory: Sequence[Any], cfg: MissionFile,
     m = cfg.mission
     h_err = dist = None
     t_gr = result.t_grasp_ready_s
-    if t_gr is not None and traj:
+    if t_gr is not None and traj and target_position_ned_m is not None:
         st = _state_at(traj, t0_ns + int(t_gr * 1e9))
         tool = tool_point_ned(st.position_ned_m, st.attitude_q, cfg.tool_point_m)
         h_err, dist = tool_errors(tool, target_position_ned_m)
+    elif t_gr is not None and result.estimated_tool_errors_m is not None:
+        # no known target (a real flight, a replay): the mission's own estimate is all there is
+        h_err, dist = result.estimated_tool_errors_m
     within = (h_err is not None and dist is not None and h_err <= tolerances.grasp_horizontal_m
               and abs(dist - m.grasp_distance_m) <= m.grasp_tolerance_m)
     violations = envelope_violations(traj, cfg, t0_ns, tolerances) if traj else []

@@ -22,11 +22,9 @@ The vehicle is always wrapped in :class:`eaglemission.safety.SafeVehicle` by the
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import functools
 import logging
 import math
-import threading
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable
@@ -53,7 +51,7 @@ from eaglemission import errors
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel, camera_pose_ned, down_axis_cos_tilt
 from eaglemission.interfaces.estimator import CameraView
-from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE, PX4_FAILSAFE_PARAMS
 from eaglemission.safety import SafeVehicle
 from eaglemission.safety_geometry import inside_geofence
 from eaglemission.types import (
@@ -69,12 +67,6 @@ from eaglemission.types import (
 
 log = logging.getLogger(__name__)
 S = MissionState
-
-PX4_FAILSAFE_PARAMS = ("COM_OBL_RC_ACT", "COM_OF_LOSS_T", "COM_RC_IN_MODE", "NAV_DLL_ACT",
-                       "NAV_RCL_ACT", "COM_DL_LOSS_T", "COM_LOW_BAT_ACT", "GF_ACTION",
-                       "COM_POS_FS_DELAY", "MPC_XY_CRUISE", "MPC_XY_VEL_MAX",
-                       "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN", "RTL_RETURN_ALT")
-
 
 COM_OBL_RC_ACT_NAMES = {0: "Position mode", 1: "Altitude mode", 2: "Manual", 3: "Return",
                         4: "Land", 5: "Hold", 6: "Terminate", 7: "Disarm"}
@@ -108,48 +100,6 @@ def failsafe_param_warnings(values: dict[str, float], safety: Any) -> list[str]:
                    f"({COM_OBL_RC_ACT_NAMES.get(int(act), 'unknown')})"
                    + ("; without RC PX4 then descends and lands" if int(act) in (0, 1) else ""))
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# Clock usable from worker threads
-# ---------------------------------------------------------------------------------------------
-class BoundLoopClock:
-    """The running loop's clock, readable from any thread (``loop.time()`` is a plain read;
-    ``LoopClock`` needs the running loop and fails in a worker thread)."""
-
-    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
-
-    def now_ns(self) -> int:
-        return int(round(self._loop.time() * 1e9))
-
-    async def sleep(self, duration_s: float) -> None:
-        await asyncio.sleep(duration_s)
-
-
-def loop_bound(fn: Callable[..., Any], loop: asyncio.AbstractEventLoop,
-               timeout_s: float = 5.0) -> Callable[..., Any]:
-    """Wrap ``fn`` so calls from a worker thread run on the loop's thread (drivers are not
-    thread-safe); calls on the loop thread go straight through."""
-    loop_thread: list[int] = []
-
-    def call(*args: Any) -> Any:
-        if not loop_thread:
-            loop_thread.append(-1)
-        if threading.get_ident() == getattr(loop, "_thread_id", None):
-            return fn(*args)
-        fut: concurrent.futures.Future[Any] = concurrent.futures.Future()
-
-        def run() -> None:
-            try:
-                fut.set_result(fn(*args))
-            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
-                fut.set_exception(exc)
-
-        loop.call_soon_threadsafe(run)
-        return fut.result(timeout=timeout_s)
-
-    return call
 
 
 # ---------------------------------------------------------------------------------------------
@@ -338,7 +288,8 @@ class MissionRunner:
                  grasp_callback: Callable[[], Awaitable[None]] | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
                  on_telemetry: Callable[[VehicleState], None] | None = None,
-                 record_all: bool = False) -> None:
+                 record_all: bool = False,
+                 on_state: Callable[[float, str, str, str], None] | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
         if not isinstance(vehicle, SafeVehicle):
             vehicle = SafeVehicle(vehicle, cfg.safety, clock=clock)
@@ -347,6 +298,9 @@ class MissionRunner:
         self.clock, self.log = clock, mission_log
         self.grasp_callback, self.on_frame, self.on_telemetry = grasp_callback, on_frame, on_telemetry
         self.record_all = record_all
+        self.on_state = on_state
+        self._interrupt: tuple[str, str] | None = None
+        self._rtl_restore: float | None = None
         self.machine = ApproachMachine(on_change=self._on_state_change)
         if params.colour_track and cfg.target.color_bgr is not None:
             # compile / load the colour mask kernel now, not on the first close-range frame
@@ -419,6 +373,13 @@ class MissionRunner:
     def _t_s(self) -> float:
         return (self.clock.now_ns() - self._t0_ns) * 1e-9
 
+    def interrupt(self, reason: str, action: str) -> None:
+        """Stop now with ``action`` (the operator's Ctrl-C): the machine aborts at its next
+        tick; the actuator carries the action out through the envelope and waits for it."""
+        if self._interrupt is None:
+            self._interrupt = (reason, action)
+            self._wake_machine.set()
+
     async def _sleep_until(self, t_ns: int) -> None:
         dt = (t_ns - self.clock.now_ns()) * 1e-9
         await self.clock.sleep(max(0.0, dt))
@@ -434,6 +395,8 @@ class MissionRunner:
             rec["action"] = self.machine.action
         self.log.write("state", **rec)
         log.info("%.2f s: %s -> %s (%s)", t, old.value, new.value, reason)
+        if self.on_state is not None:
+            self.on_state(t, new.value, reason, rec.get("action", ""))
         if new is S.TAKEOFF:
             self._commands.put_nowait(("arm_takeoff", None))
         elif new is S.CRUISE:
@@ -490,9 +453,7 @@ class MissionRunner:
     # -- tasks ---------------------------------------------------------------------------------
     async def _camera_loop(self, cam_id: str) -> None:
         cam = self.cameras[cam_id]
-        sim = self.cfg.simulation
-        rate = self.p.process_rate_hz if sim is None else min(self.p.process_rate_hz,
-                                                               sim.frame_rate_hz)
+        rate = min(self.p.process_rate_hz, float(getattr(cam, "frame_rate_hz", math.inf)))
         period_ns = int(1e9 / rate)
         next_ns = self.clock.now_ns()
         grab_timeout_s = max(0.5, 3.0 / rate)
@@ -919,7 +880,9 @@ class MissionRunner:
             battery_remaining=vs.battery_remaining,
             low_battery_fraction=self.cfg.safety.low_battery_fraction,
             goal_inside_geofence=self._goal_ok, camera_failed=camera_failed,
-            pilot_override=pilot, command_failed=self._command_failed)
+            pilot_override=pilot, command_failed=self._command_failed,
+            interrupt_reason=self._interrupt[0] if self._interrupt else "",
+            interrupt_action=self._interrupt[1] if self._interrupt else "return")
 
     def _route_finished(self, vs: VehicleState) -> bool:
         if self._route_s < self._route_len - 1e-6:
@@ -1086,6 +1049,7 @@ class MissionRunner:
 
     async def _actuator_loop(self) -> None:
         v = self.vehicle
+        await self._align_autopilot()
         await self._read_failsafe_params()
         while not self._stopping:
             try:
@@ -1111,8 +1075,12 @@ class MissionRunner:
             elif name == "grasp":
                 await self._grasp()
             elif name == "final":
-                await self._final(arg)
-                self._finished.set()
+                try:
+                    await self._final(arg)
+                    if not v.state().in_air:
+                        await self._restore_autopilot()
+                finally:
+                    self._finished.set()
                 return
 
     async def _grasp(self) -> None:
@@ -1138,7 +1106,7 @@ class MissionRunner:
             if was_offboard:  # leave offboard explicitly (MAVSDK: offboard.stop()) first
                 await self._command("stop_offboard", v.stop_offboard)
             fn = {"hold": v.hold, "land": v.land, "return": v.return_to_launch}[action]
-            deadline = self.clock.now_ns() + int(self.p.settle_timeout_s * 1e9)
+            deadline = self.clock.now_ns() + int(self._settle_s() * 1e9)
             while not await self._command(action, fn):
                 if self.clock.now_ns() > deadline:
                     break
@@ -1148,7 +1116,7 @@ class MissionRunner:
         self._final_sent = True
         # let the flight finish (landing / return) so the whole flight is recorded
         if action in ("land", "return"):
-            deadline = self.clock.now_ns() + int(self.p.settle_timeout_s * 1e9)
+            deadline = self.clock.now_ns() + int(self._settle_s() * 1e9)
             while self.clock.now_ns() < deadline:
                 vs = v.state()
                 if not vs.in_air and not vs.armed:
@@ -1156,6 +1124,48 @@ class MissionRunner:
                 await self.clock.sleep(0.5)
         else:
             await self.clock.sleep(2.0)
+
+    def _settle_s(self) -> float:
+        """How long the final action may take (an interrupt has its own bound)."""
+        if self._interrupt is not None:
+            return min(self.p.settle_timeout_s, self.cfg.safety.interrupt_timeout_s)
+        return self.p.settle_timeout_s
+
+    async def _align_autopilot(self) -> None:
+        """Put the autopilot's own return height inside the envelope before the flight
+        (RTL_RETURN_ALT: PX4 returns at 30 m by default, above most missions' altitude band):
+        the cruise altitude, clamped into the band. Restored after the flight. Vehicles
+        without parameters are left alone."""
+        get = getattr(self.vehicle.inner, "get_param", None)
+        put = getattr(self.vehicle.inner, "set_param", None)
+        if get is None or put is None:
+            return
+        s = self.cfg.safety
+        want = max(s.min_altitude_m + 1.0, min(self.m.cruise_altitude_m, s.max_altitude_m - 1.0))
+        try:
+            have = float(await asyncio.wait_for(get("RTL_RETURN_ALT"),
+                                                timeout=self.m.timeouts.command_s))
+            if abs(have - want) > 1e-3:
+                await asyncio.wait_for(put("RTL_RETURN_ALT", want),
+                                       timeout=self.m.timeouts.command_s)
+                self._rtl_restore = have
+            self.log.write("param_set", name="RTL_RETURN_ALT", was=have, now=want)
+        except (errors.VehicleError, TimeoutError) as exc:
+            self.log.write("param_set", name="RTL_RETURN_ALT", ok=False, error=str(exc))
+
+    async def _restore_autopilot(self) -> None:
+        if self._rtl_restore is None:
+            return
+        put = getattr(self.vehicle.inner, "set_param", None)
+        try:
+            await asyncio.wait_for(put("RTL_RETURN_ALT", self._rtl_restore),  # type: ignore[misc]
+                                   timeout=self.m.timeouts.command_s)
+            self.log.write("param_set", name="RTL_RETURN_ALT", now=self._rtl_restore,
+                           restored=True)
+        except (errors.VehicleError, TimeoutError) as exc:
+            self.log.write("param_set", name="RTL_RETURN_ALT", ok=False, restored=False,
+                           error=str(exc))
+        self._rtl_restore = None
 
     async def _read_failsafe_params(self) -> None:
         """Read PX4's own failsafe parameters back when the vehicle offers ``get_param``."""
@@ -1248,6 +1258,18 @@ class MissionRunner:
         self.plane.update(vs.position_ned_m[2] + d * cos_tilt, self.p.rangefinder_std_m,
                           vs.timestamp_ns)
 
+    def _result(self) -> MissionResult:
+        return MissionResult(
+            final_state=self.machine.state.value, reason=self.machine.reason,
+            action=self.machine.action if self.machine.state is S.FAILSAFE else self.m.on_done,
+            states=self.states, t_start_s=0.0, t_end_s=self._t_s(),
+            t_grasp_ready_s=self.t_grasp_ready_s, estimated_tool_errors_m=self.tool_errors,
+            latencies_ms=self.latencies_ms, frames_processed=dict(self._processed),
+            detections=dict(self._detected), detection_frames=self.detection_frames,
+            failsafe_params=self.failsafe_params, failsafe_warnings=self.failsafe_warnings,
+            perception_ms=self.perception_ms,
+            wall_s=time.perf_counter() - self._wall0)
+
     # -- main ----------------------------------------------------------------------------------
     async def run(self) -> MissionResult:
         self.log.write("start", config_state=self.machine.state.value,
@@ -1264,30 +1286,25 @@ class MissionRunner:
                 self.log.write("event", source="mission", text=f"machine crashed: {exc!r}")
                 raise
 
-        async with asyncio.TaskGroup() as tg:
-            tg.create_task(stopper())
-            tg.create_task(self._telemetry_loop())
-            tg.create_task(self._actuator_loop())
-            tg.create_task(machine_guard())
-            tg.create_task(self._setpoint_loop())
-            tg.create_task(self._perception_loop())
-            for cam in self.cameras:
-                tg.create_task(self._camera_loop(cam))
-        result = MissionResult(
-            final_state=self.machine.state.value, reason=self.machine.reason,
-            action=self.machine.action if self.machine.state is S.FAILSAFE else self.m.on_done,
-            states=self.states, t_start_s=0.0, t_end_s=self._t_s(),
-            t_grasp_ready_s=self.t_grasp_ready_s, estimated_tool_errors_m=self.tool_errors,
-            latencies_ms=self.latencies_ms, frames_processed=dict(self._processed),
-            detections=dict(self._detected), detection_frames=self.detection_frames,
-            failsafe_params=self.failsafe_params, failsafe_warnings=self.failsafe_warnings,
-            perception_ms=self.perception_ms,
-            wall_s=time.perf_counter() - self._wall0)
-        self.log.write("end", final_state=result.final_state, reason=result.reason,
-                       action=result.action, t_grasp_ready_s=result.t_grasp_ready_s,
-                       estimated_tool_errors_m=result.estimated_tool_errors_m,
-                       latency_p90_ms=result.latency_p90_ms, frames=result.frames_processed,
-                       wall_s=round(result.wall_s, 3))
+        completed = False
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(stopper())
+                tg.create_task(self._telemetry_loop())
+                tg.create_task(self._actuator_loop())
+                tg.create_task(machine_guard())
+                tg.create_task(self._setpoint_loop())
+                tg.create_task(self._perception_loop())
+                for cam in self.cameras:
+                    tg.create_task(self._camera_loop(cam))
+            completed = True
+        finally:
+            result = self._result()
+            self.log.write("end", final_state=result.final_state, reason=result.reason,
+                           action=result.action, t_grasp_ready_s=result.t_grasp_ready_s,
+                           estimated_tool_errors_m=result.estimated_tool_errors_m,
+                           latency_p90_ms=result.latency_p90_ms, frames=result.frames_processed,
+                           wall_s=round(result.wall_s, 3), completed=completed)
         return result
 
 
@@ -1333,11 +1350,3 @@ def _wide_detection_in_narrow(det: Detection, wide: CameraModel, narrow: CameraM
     pose_n = camera_pose_ned(narrow, state.position_ned_m, state.attitude_q).inverse()
     px = narrow.project(pose_n.apply(np.asarray(pts)))
     return fully_in_image(narrow, px, 0.0)
-
-
-async def build_and_run(cfg: MissionFile, *, params: ApproachConfig | None = None,
-                        **context: Any) -> Any:
-    """Plugin entry: build the simulated setup from ``cfg`` and fly it (see sim.py)."""
-    from eaglemission.missions.sim import fly_simulation
-
-    return await fly_simulation(cfg, params=params, **context)

@@ -198,6 +198,58 @@ def gentl_producers(cti_files: list[str]) -> list[str]:
     return out
 
 
+class _SharedHarvesters:
+    """One :class:`harvesters.core.Harvester` per set of GenTL producers in this process,
+    shared by every camera that uses them: a producer loaded by a second Harvester lists no
+    devices (measured with the genicam wheel's viky.cti, and two Basler cameras on one pylon
+    producer are the same case), so both cameras of the rig must open through one."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._items: dict[tuple[str, ...], list[Any]] = {}
+
+    def acquire(self, core: Any, cti_files: list[str]) -> Any:
+        key = tuple(cti_files)
+        with self._lock:
+            item = self._items.get(key)
+            if item is None:
+                h = core.Harvester()
+                try:
+                    for f in cti_files:
+                        h.add_file(f)
+                    h.update()
+                except BaseException:
+                    h.reset()
+                    raise
+                item = self._items[key] = [h, 0]
+            item[1] += 1
+            return item[0]
+
+    def release(self, harvester: Any) -> None:
+        with self._lock:
+            for key, item in list(self._items.items()):
+                if item[0] is harvester:
+                    item[1] -= 1
+                    if item[1] <= 0:
+                        del self._items[key]
+                        try:
+                            harvester.reset()
+                        except Exception:  # the producer may be gone already
+                            log.debug("harvester reset failed", exc_info=True)
+                    return
+
+    def refresh(self, harvester: Any) -> None:
+        """Update the device list (a reopen after a device was lost) when no other camera
+        uses this Harvester (``update()`` would invalidate their device infos)."""
+        with self._lock:
+            for item in self._items.values():
+                if item[0] is harvester and item[1] <= 1:
+                    harvester.update()
+
+
+HARVESTERS = _SharedHarvesters()
+
+
 # ---------------------------------------------------------------------------------------------
 # The plugin
 # ---------------------------------------------------------------------------------------------
@@ -205,6 +257,7 @@ class GenICamCamera:
     """A GenICam camera through harvesters (GenTL)."""
 
     description = "GenICam camera through harvesters/GenTL (Basler USB3 Vision, ...)"
+    wall_clock = True  # a real device: frames arrive in host time
 
     class Config(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -338,11 +391,10 @@ class GenICamCamera:
             if self._ia is not None:
                 return
             core = _import_harvesters()
-            h = core.Harvester()
+            h = HARVESTERS.acquire(core, gentl_producers(self.config.cti_files))
             try:
-                for f in gentl_producers(self.config.cti_files):
-                    h.add_file(f)
-                h.update()
+                if self._lost:
+                    HARVESTERS.refresh(h)
                 dev = self._select_device(h)
                 ia = h.create(dev)
                 try:
@@ -353,7 +405,7 @@ class GenICamCamera:
                     ia.destroy()
                     raise
             except BaseException:
-                h.reset()
+                HARVESTERS.release(h)
                 raise
             self._h, self._ia = h, ia
             self._lost = False
@@ -362,12 +414,14 @@ class GenICamCamera:
     def _teardown(self) -> None:
         ia, h = self._ia, self._h
         self._ia = self._h = None
-        for fn in ((lambda: ia.stop()), (lambda: ia.destroy()), (lambda: h.reset())):
+        for fn in ((lambda: ia.stop()), (lambda: ia.destroy())):
             try:
-                if ia is not None and h is not None:
+                if ia is not None:
                     fn()
             except Exception:  # tearing down a lost device: errors are expected
                 log.debug("camera %r: teardown step failed", self.camera_id, exc_info=True)
+        if h is not None:
+            HARVESTERS.release(h)
 
     def close(self) -> None:
         with self._lock:
@@ -470,6 +524,15 @@ class GenICamCamera:
             if mapped is not None and len(self.clock_mapper) >= 3:
                 return mapped + half  # device latches the exposure start
         return host_ns - int(round(self.config.transfer_latency_s * 1e9)) - half
+
+    def summary(self) -> str:
+        d = self.device_info
+        who = d.get("id_") or d.get("serial_number") or "not open"
+        return f"{d.get('vendor', '')} {d.get('model', '')} {who}".strip()
+
+    @property
+    def frame_rate_hz(self) -> float:
+        return float(self.config.frame_rate_hz or math.inf)
 
     def health(self) -> dict[str, Any]:
         return {"camera_id": self.camera_id, "open": self._ia is not None, "is_lost": self._lost,

@@ -3,7 +3,7 @@
 Sources (``Config.path``), detected in this order:
 
 * a **recorded run** (``<path>/<camera>/frames.csv``, written by
-  :class:`~eaglemission.drivers.cameras.recorder.RunRecorder`): frames stamped with their
+  :class:`~eaglemission.recording.RunRecorder`): frames stamped with their
   recorded ``timestamp_ns`` (they match the run's ``telemetry.jsonl``);
 * a **DAVIS-layout sequence** (``<path>/frames/*.jpg``) or any **image folder**
   (``*.png|*.jpg|*.jpeg|*.bmp|*.tif*``, natural name order);
@@ -12,7 +12,12 @@ Sources (``Config.path``), detected in this order:
 Without recorded stamps, frame ``k`` is stamped ``start_ns + k / frame_rate_hz`` (the video's
 own rate when ``frame_rate_hz`` is unset). Pacing ``as_fast_as_consumed`` hands the next
 frame at once; ``realtime`` holds each frame until its offset from the first frame has elapsed
-on the host monotonic clock. Replays are deterministic; past the last frame ``grab`` raises
+on the host monotonic clock; ``clock`` (the mission's replay deployment) serves, at each grab,
+the newest frame whose recorded stamp has been reached on the flight's clock (virtual or real;
+the recording's time base is shared with the ``replay`` vehicle through the assembly), skipping
+older ones (counted) and raising :class:`~eaglemission.errors.GrabTimeout` when no new frame is
+due yet. Frames keep their recorded stamps shifted by that common offset (zero in virtual time,
+where the flight's clock starts at the recording's first stamp). Replays are deterministic; past the last frame ``grab`` raises
 :class:`~eaglemission.errors.EndOfStream` (unless ``loop``). An undecodable or wrong-size
 frame raises :class:`~eaglemission.errors.FrameError` (counted; the next grab moves on).
 """
@@ -29,13 +34,14 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from eaglemission.drivers.cameras.recorder import FRAMES_CSV
-from eaglemission.drivers.cameras.recorder import RunRecorder as Recorder
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.clock import Clock
+from eaglemission.context import REPLAY_EPOCH_NS, SharedContext
 from eaglemission.errors import CameraError, ConfigError, EndOfStream, FrameError, GrabTimeout
 from eaglemission.geometry import CameraModel
+from eaglemission.recording import FRAMES_CSV, recording_start_ns
+from eaglemission.recording import RunRecorder as Recorder
 from eaglemission.types import Frame
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -88,7 +94,7 @@ class ReplayCamera:
         camera: str | None = Field(default=None,
                                    description="camera folder inside a recorded run "
                                                "(default: the rig's camera id)")
-        pacing: Literal["realtime", "as_fast_as_consumed"] = "as_fast_as_consumed"
+        pacing: Literal["realtime", "as_fast_as_consumed", "clock"] = "as_fast_as_consumed"
         frame_rate_hz: float | None = Field(default=None, gt=0, le=1000)
         start_ns: int = Field(default=1_000_000_000, ge=0,
                               description="stamp of frame 0 for sources without stamps")
@@ -98,8 +104,15 @@ class ReplayCamera:
 
     def __init__(self, config: Config | None = None, *, model: CameraModel,
                  clock: Clock | None = None, camera_id: str | None = None,
-                 **_context: Any) -> None:
+                 shared: SharedContext | None = None, **_context: Any) -> None:
         self.config = config or self.Config()
+        self.clock = clock
+        self._epoch_ns = 0
+        if self.config.pacing == "clock":
+            if clock is None:
+                raise ConfigError(f"cameras.{camera_id or model.camera_id}.params.pacing: "
+                                  "'clock' needs the flight's clock (use it through the assembly)")
+            self._epoch_ns = replay_epoch_ns(shared, clock, Path(self.config.path).expanduser())
         self.model = model
         self.camera_id = camera_id or model.camera_id
         self._lock = threading.Lock()
@@ -226,8 +239,32 @@ class ReplayCamera:
     def _end(self) -> None:
         raise EndOfStream(self.camera_id, self._served)
 
+    def _grab_due(self, timeout_s: float) -> Frame:
+        """``pacing: clock``: the newest frame due on the flight's clock."""
+        assert self._entries is not None and self.clock is not None
+        if self._index >= len(self._entries):
+            self._end()
+        due_ns = int(self.clock.now_ns()) - self._epoch_ns
+        k = self._index
+        if self._entries[k].timestamp_ns > due_ns:
+            self.stats["timeouts"] += 1
+            raise GrabTimeout(self.camera_id, timeout_s)
+        while k + 1 < len(self._entries) and self._entries[k + 1].timestamp_ns <= due_ns:
+            k += 1
+        self.stats["skipped"] = self.stats.get("skipped", 0) + (k - self._index)
+        e = self._entries[k]
+        self._index = k + 1
+        img = cv2.imread(str(e.path), cv2.IMREAD_COLOR) if e.path is not None else None
+        img = self._check(img, str(e.path))
+        self._served += 1
+        self.stats["frames"] += 1
+        return Frame(img, e.timestamp_ns + self._epoch_ns, self.camera_id, e.seq,
+                     exposure_s=e.exposure_s)
+
     def _grab_entry(self, timeout_s: float) -> Frame:
         assert self._entries is not None
+        if self.config.pacing == "clock":
+            return self._grab_due(timeout_s)
         if self._index >= len(self._entries):
             if not self.config.loop or not self._entries:
                 self._end()
@@ -276,6 +313,17 @@ class ReplayCamera:
     def health(self) -> dict[str, Any]:
         return {"camera_id": self.camera_id, "source": self.kind, "served": self._served,
                 **self.stats}
+
+
+def replay_epoch_ns(shared: SharedContext | None, clock: Clock, run_dir: Path) -> int:
+    """Flight clock minus recorded time, the same for every replay plugin of one flight (set
+    by the first one built: at that instant the flight's clock stands at the recording's first
+    stamp in virtual time, so the offset is 0 there)."""
+    def make() -> int:
+        start = recording_start_ns(run_dir)
+        return 0 if start is None else int(clock.now_ns()) - start
+
+    return make() if shared is None else shared.get_or_create(REPLAY_EPOCH_NS, make)
 
 
 __all__ = ["ReplayCamera", "Recorder", "list_images", "read_frames_csv", "CameraError"]

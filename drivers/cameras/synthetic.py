@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.config import MissionFile, SimulationConfig, TargetConfig
+from eaglemission.context import WORLD, SharedContext
 from eaglemission.errors import ConfigError, GrabTimeout
 from eaglemission.geometry import CameraModel
 from eaglemission.types import XYZ, Frame, Quat
@@ -44,22 +45,24 @@ class SyntheticCamera:
             default=None, gt=0, le=1.0,
             description="exposure reported in Frame.exposure_s (default: the camera model's)")
 
+    needs_pose = True  # renders from a pose source: the truth, else the vehicle's estimate
+
     def __init__(self, config: Config | None = None, *, model: CameraModel,
                  clock: Clock | None = None, world: SyntheticWorld | None = None,
                  pose_source: PoseSource | None = None, camera_id: str | None = None,
                  simulation: SimulationConfig | None = None, target: TargetConfig | None = None,
+                 shared: SharedContext | None = None, safety: Any = None,
                  **_context: Any) -> None:
         self.config = config or self.Config()
         self.model = model
         self.camera_id = camera_id or model.camera_id
         self.clock: Clock = clock or MonotonicClock()
         if world is None:
-            if target is None:
+            if simulation is None or target is None:
                 raise ConfigError(
-                    f"cameras.{self.camera_id}: the synthetic camera needs a world: pass "
-                    "`world=SyntheticWorld(...)` (or `simulation` and `target`), e.g. via "
-                    "eaglemission.drivers.cameras.synthetic.make_synthetic_rig")
-            world = SyntheticWorld(simulation, target)
+                    f"cameras.{self.camera_id}.type: a synthetic camera renders the simulated "
+                    "world: add the `simulation` section (the world) to the mission file")
+            world = shared_world(shared, simulation, target, safety)
         if pose_source is None:
             raise ConfigError(
                 f"cameras.{self.camera_id}: the synthetic camera needs `pose_source`, a "
@@ -144,17 +147,51 @@ class SyntheticCamera:
     def health(self) -> dict[str, Any]:
         return {"camera_id": self.camera_id, "open": self._open, **self.stats}
 
+    @property
+    def frame_rate_hz(self) -> float:
+        """The simulated sensor's frame rate (``simulation.frame_rate_hz``)."""
+        return float(self.world.simulation.frame_rate_hz)
+
+    def summary(self) -> str:
+        return f"renders the simulated world at up to {self.frame_rate_hz:g} fps"
+
+    @classmethod
+    def config_problems(cls, mission: MissionFile, path: str) -> list[str]:
+        """``validate``: a synthetic camera needs the world it renders."""
+        if mission.simulation is None:
+            return [f"{path}.type: a synthetic camera renders the simulated world: add the "
+                    "`simulation` section, or use a real camera (genicam) or replay"]
+        return []
+
+
+def shared_world(shared: SharedContext | None, simulation: SimulationConfig,
+                 target: TargetConfig, safety: Any = None) -> SyntheticWorld:
+    """The flight's one world (both cameras render the same; the evaluator reads its target),
+    built on first use and kept in the assembly's shared context."""
+    def build() -> SyntheticWorld:
+        extent = min(1000.0, world_extent_m(simulation, safety))
+        world = SyntheticWorld(simulation, target, extent_m=extent)
+        world.warm_up()  # texture copies for the fast ground path, before the flight starts
+        return world
+
+    return build() if shared is None else shared.get_or_create(WORLD, build)
+
+
+def world_extent_m(simulation: SimulationConfig, safety: Any = None) -> float:
+    """Side of a square around home covering the geofence, the target and the distractors."""
+    reach = [math.hypot(simulation.target_north_m, simulation.target_east_m)]
+    reach += [math.hypot(d.north_m, d.east_m) for d in simulation.distractors]
+    fence = getattr(safety, "geofence", None)
+    if fence is not None:
+        reach.append(fence.radius_m or 0.0)
+        if fence.polygon_ned_m:
+            reach += [math.hypot(n, e) for n, e in fence.polygon_ned_m]
+    return 2.0 * (max(reach) + 20.0)
+
 
 def geofence_extent_m(config: MissionFile) -> float:
     """Side of a square around home covering the geofence, the target and the distractors."""
-    fence = config.safety.geofence
-    reach = [fence.radius_m or 0.0]
-    if fence.polygon_ned_m:
-        reach += [math.hypot(n, e) for n, e in fence.polygon_ned_m]
-    sim = config.simulation or SimulationConfig()
-    reach.append(math.hypot(sim.target_north_m, sim.target_east_m))
-    reach += [math.hypot(d.north_m, d.east_m) for d in sim.distractors]
-    return 2.0 * (max(reach) + 20.0)
+    return world_extent_m(config.simulation or SimulationConfig(), config.safety)
 
 
 def make_synthetic_rig(config: MissionFile, pose_source: PoseSource, clock: Clock, *,
@@ -168,9 +205,8 @@ def make_synthetic_rig(config: MissionFile, pose_source: PoseSource, clock: Cloc
     from eaglemission.drivers.cameras.rig import CameraRig
 
     if world is None:
-        world = SyntheticWorld(config.simulation, config.target,
-                               extent_m=min(1000.0, geofence_extent_m(config)))
-        world.warm_up()  # texture copies for the fast ground path, before the flight starts
+        world = shared_world(None, config.simulation or SimulationConfig(), config.target,
+                             config.safety)
     cams = {}
     for cid in ("wide", "narrow"):
         section = getattr(config.cameras, cid)

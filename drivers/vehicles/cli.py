@@ -36,6 +36,15 @@ def _add(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration-s", type=float, default=None, help="stop after this long")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="PX4 parameter override, e.g. COM_OBL_RC_ACT=5 (repeatable)")
+    p.add_argument("--mission", metavar="YAML",
+                   help="take the world's wind and seed (`simulation`) and, when its vehicle "
+                        "is `simulated`, its dynamics and rangefinder from this mission file "
+                        "(what `run --vehicle emulator` does)")
+    p.add_argument("--rangefinder", action="store_true",
+                   help="stream a downward DISTANCE_SENSOR (as PX4 SIH)")
+    p.add_argument("--status-json", metavar="PATH",
+                   help="write the emulator's own state (mode, armed, landed, true position) "
+                        "to this file every 0.2 s")
 
 
 def _params(items: list[str]) -> dict[str, float]:
@@ -61,6 +70,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.home:
         kw.update(home_latitude_deg=args.home[0], home_longitude_deg=args.home[1],
                   home_altitude_amsl_m=args.home[2])
+    if args.mission:
+        kw.update(emulator_settings_from_mission(args.mission))
+    if args.rangefinder:
+        rf = kw.get("rangefinder")
+        kw["rangefinder"] = ({**rf, "enabled": True} if isinstance(rf, dict)
+                             else {"enabled": True})
     try:
         cfg = EmulatorConfig(**kw)  # type: ignore[arg-type]
     except ValueError as exc:
@@ -80,6 +95,8 @@ def _run(args: argparse.Namespace) -> int:
         last_mode = None
         while not stop.wait(0.2):
             snap = emu.snapshot()
+            if args.status_json:
+                write_status(args.status_json, snap)
             if (snap.mode, snap.armed) != last_mode:
                 last_mode = (snap.mode, snap.armed)
                 console.print(f"t={snap.sim_time_s:7.1f} s  mode {snap.mode.value}"
@@ -92,6 +109,41 @@ def _run(args: argparse.Namespace) -> int:
             signal.signal(s, h)
     console.print("emulator stopped")
     return 0
+
+
+def emulator_settings_from_mission(path: str) -> dict[str, object]:
+    """EmulatorConfig fields from a mission file: the world's seed and wind; the simulated
+    vehicle's dynamics (speeds inside the envelope) and rangefinder when its vehicle is
+    ``simulated``."""
+    from eaglemission.drivers.vehicles.dynamics import speeds_within_envelope
+    from eaglemission.drivers.vehicles.simulated import SimulatedVehicleConfig
+
+    from eaglemission.config import load_config
+
+    cfg = load_config(path, check_plugins=False)
+    out: dict[str, object] = {}
+    if cfg.simulation is not None:
+        out.update(seed=cfg.simulation.seed, wind_ne_mps=tuple(cfg.simulation.wind_ne_mps))
+    vp = (SimulatedVehicleConfig.model_validate(dict(cfg.vehicle.params))
+          if cfg.vehicle.type == "simulated" else SimulatedVehicleConfig())
+    out["dynamics"] = speeds_within_envelope(vp.dynamics, cfg.safety).model_dump()
+    out["rangefinder"] = vp.rangefinder.model_dump()
+    return out
+
+
+def write_status(path: str, snap: object) -> None:
+    """The emulator's snapshot as JSON, replaced atomically."""
+    import dataclasses
+    import json
+    import os
+
+    d = dataclasses.asdict(snap)  # type: ignore[call-overload]
+    d["mode"] = getattr(d["mode"], "value", str(d["mode"]))
+    d["wall_time_s"] = time.time()
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(d, f, default=str)
+    os.replace(tmp, path)
 
 
 SITL_VEHICLE_COMMAND = Command(

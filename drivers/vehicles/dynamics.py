@@ -36,7 +36,7 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -85,6 +85,19 @@ class DynamicsParams(BaseModel):
     gps_loss_drift_mps: _NonNeg = 0.3
     wind_gust_std_mps: _NonNeg = 0.0
     wind_gust_time_s: _Pos = 2.0
+
+
+def speeds_within_envelope(params: DynamicsParams, safety: Any) -> DynamicsParams:
+    """The autopilot's own speeds (PX4 MPC_XY_CRUISE / MPC_XY_VEL_MAX / MPC_Z_VEL_MAX_UP /
+    MPC_Z_VEL_MAX_DN) set inside the mission's safety envelope, as a field team sets PX4's:
+    the envelope shapes only *our* setpoints, while autopilot-flown moves (RTL, land, takeoff)
+    fly at these. Fields given explicitly in ``params`` are kept."""
+    given = params.model_fields_set
+    h, v = float(safety.max_horizontal_speed_mps), float(safety.max_vertical_speed_mps)
+    derived = {"cruise_speed_mps": min(5.0, 0.9 * h), "max_horizontal_speed_mps": min(10.0, h),
+               "max_up_speed_mps": min(3.0, 0.9 * v), "max_down_speed_mps": min(1.5, 0.9 * v)}
+    update = {k: val for k, val in derived.items() if k not in given}
+    return params.model_copy(update=update) if update else params
 
 
 # ---------------------------------------------------------------------------------------------

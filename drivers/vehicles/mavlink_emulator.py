@@ -89,7 +89,10 @@ PX4_ONBOARD_RATES_HZ: dict[str, float] = {
     "BATTERY_STATUS": 0.5,
     "CURRENT_MODE": 0.5,
     "DISTANCE_SENSOR": 10.0,  # recorded 9.85 Hz; sent only with a rangefinder (config)
+    "HIL_STATE_QUATERNION": 0.0,  # ground truth: not streamed until requested (as PX4 SIH)
 }
+HIL_STATE_DEFAULT_HZ = 50.0
+"""Rate of HIL_STATE_QUATERNION when requested with interval 0 ("default")."""
 MSG_IDS: dict[str, int] = {name: getattr(M, f"MAVLINK_MSG_ID_{name}") for name in
                            [*PX4_ONBOARD_RATES_HZ, "AUTOPILOT_VERSION", "GPS_GLOBAL_ORIGIN"]}
 MSG_NAMES: dict[int, str] = {v: k for k, v in MSG_IDS.items()}
@@ -106,6 +109,11 @@ recorded after the landing of scenario a)."""
 DISTANCE_SENSOR_MAX_HZ = 50.0
 """PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
 
+FENCE_COMMANDS = frozenset({M.MAV_CMD_NAV_FENCE_RETURN_POINT,
+                            M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                            M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
+                            M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
+                            M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION})
 NAV_COMMANDS = frozenset({M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND,
                           M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LOITER_UNLIM,
                           M.MAV_CMD_NAV_LOITER_TIME})
@@ -310,6 +318,8 @@ class Px4Emulator:
                          "MPC_XY_VEL_MAX": dp.max_horizontal_speed_mps,
                          "MPC_Z_VEL_MAX_UP": dp.max_up_speed_mps,
                          "MPC_Z_VEL_MAX_DN": dp.max_down_speed_mps,
+                         "MPC_Z_V_AUTO_UP": dp.max_up_speed_mps,
+                         "MPC_Z_V_AUTO_DN": dp.max_down_speed_mps,
                          "MPC_TKO_SPEED": dp.takeoff_speed_mps,
                          "MPC_LAND_SPEED": dp.land_speed_mps,
                          "MPC_YAWRAUTO_MAX": dp.max_yaw_rate_degps}
@@ -383,6 +393,7 @@ class Px4Emulator:
         self._gcs_hb_wall = -math.inf
         self._on_ground_since: float | None = 0.0
         self._statustext_id = 0
+        self.fence_items: list[Any] = []  # the uploaded geofence (MISSION_ITEM_INT, FENCE)
         self._intervals: dict[str, float] = {
             name: (1.0 / hz if hz > 0 else math.inf) for name, hz in
             {**PX4_ONBOARD_RATES_HZ, **cfg.stream_rates_hz}.items()
@@ -734,6 +745,20 @@ class Px4Emulator:
             msg = M.MAVLink_distance_sensor_message(
                 t_ms, lo, hi, cur, M.MAV_DISTANCE_SENSOR_LASER, 0,
                 M.MAV_SENSOR_ROTATION_PITCH_270, 0, 0.0, 0.0, [0.0, 0.0, 0.0, 0.0], 0)
+        elif name == "HIL_STATE_QUATERNION":
+            # The simulator's ground truth as PX4 SIH fills it (README of the tlogs, "Ground
+            # truth"): time_usec 0, true attitude, body rates, position (degE7, mm AMSL),
+            # NED velocity (cm/s), airspeeds 0, true NED acceleration truncated to m/s^2.
+            tr = self.dyn.truth()
+            tg = ned_to_geodetic(self.home, *tr.position_ned_m)
+            tv = tr.velocity_ned_mps
+            acc = tr.acceleration_ned_mps2
+            msg = M.MAVLink_hil_state_quaternion_message(
+                0, list(tr.attitude_q), 0.0, 0.0, math.radians(tr.yaw_rate_degps),
+                int(round(tg.latitude_deg * 1e7)), int(round(tg.longitude_deg * 1e7)),
+                int(round(tg.altitude_amsl_m * 1000)), int(round(tv[0] * 100)),
+                int(round(tv[1] * 100)), int(round(tv[2] * 100)), 0, 0,
+                int(acc[0]), int(acc[1]), int(acc[2]))
         elif name == "AUTOPILOT_VERSION":
             caps = (M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                     | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -946,7 +971,7 @@ class Px4Emulator:
         if interval_us == -1:
             self._intervals[name] = math.inf
         elif interval_us == 0:
-            hz = PX4_ONBOARD_RATES_HZ[name]
+            hz = PX4_ONBOARD_RATES_HZ[name] or HIL_STATE_DEFAULT_HZ
             self._intervals[name] = 1.0 / hz
         elif interval_us > 0:
             self._intervals[name] = max(interval_us * 1e-6, 1.0 / 250.0)
@@ -1047,6 +1072,14 @@ class Px4Emulator:
 
     def _on_mission_count(self, msg: Any) -> None:
         partner = (msg.get_srcSystem(), msg.get_srcComponent())
+        if msg.mission_type == M.MAV_MISSION_TYPE_FENCE:
+            if msg.count == 0:
+                self.fence_items = []
+                self._mission_ack(partner, M.MAV_MISSION_ACCEPTED, msg.mission_type)
+                return
+            self._upload = _Upload(msg.count, msg.mission_type, partner)  # item by item, as PX4
+            self._request_next(time.monotonic())
+            return
         if msg.mission_type != M.MAV_MISSION_TYPE_MISSION:
             self._mission_ack(partner, M.MAV_MISSION_ACCEPTED, msg.mission_type)
             return
@@ -1089,6 +1122,15 @@ class Px4Emulator:
         if len(up.items) < up.count:
             self._request_next(time.monotonic())
             return
+        if up.mission_type == M.MAV_MISSION_TYPE_FENCE:
+            ok = all(item.command in FENCE_COMMANDS for item in up.items)
+            if ok:
+                self.fence_items = list(up.items)
+                self._statustext("Geofence uploaded")
+            self._upload = None
+            self._mission_ack(up.partner, M.MAV_MISSION_ACCEPTED if ok else
+                              M.MAV_MISSION_UNSUPPORTED, M.MAV_MISSION_TYPE_FENCE)
+            return
         for item in up.items:
             if item.command not in NAV_COMMANDS and item.command not in _MISSION_DO:
                 self._mission_ack(up.partner, M.MAV_MISSION_UNSUPPORTED, up.mission_type)
@@ -1100,11 +1142,20 @@ class Px4Emulator:
         self._send("MISSION_CURRENT")
 
     def _on_mission_request_list(self, msg: Any) -> None:
-        count = len(self._mission.items) if msg.mission_type == M.MAV_MISSION_TYPE_MISSION else 0
+        count = (len(self._mission.items) if msg.mission_type == M.MAV_MISSION_TYPE_MISSION
+                 else len(self.fence_items) if msg.mission_type == M.MAV_MISSION_TYPE_FENCE
+                 else 0)
         self._emit(M.MAVLink_mission_count_message(msg.get_srcSystem(), msg.get_srcComponent(),
                                                    count, msg.mission_type))
 
     def _on_mission_request_int(self, msg: Any) -> None:
+        if msg.mission_type == M.MAV_MISSION_TYPE_FENCE and msg.seq < len(self.fence_items):
+            it = self.fence_items[msg.seq]
+            self._emit(M.MAVLink_mission_item_int_message(
+                msg.get_srcSystem(), msg.get_srcComponent(), it.seq, it.frame, it.command, 0,
+                it.autocontinue, it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z,
+                it.mission_type))
+            return
         if msg.mission_type != M.MAV_MISSION_TYPE_MISSION or msg.seq >= len(self._mission.items):
             self._mission_ack((msg.get_srcSystem(), msg.get_srcComponent()),
                               M.MAV_MISSION_INVALID_SEQUENCE, msg.mission_type)

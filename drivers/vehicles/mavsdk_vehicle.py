@@ -43,6 +43,7 @@ import asyncio
 import concurrent.futures
 import contextlib
 import functools
+import json
 import logging
 import math
 import threading
@@ -52,6 +53,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Protocol
 
+from eaglemission.drivers.vehicles.hil_truth import MSG_ID as HIL_MSG_ID
+from eaglemission.drivers.vehicles.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.simulated import (
     EVENT_FAILSAFE,
     EVENT_GRIPPER,
@@ -139,6 +142,11 @@ class MavsdkVehicleConfig(BaseModel):
     it never sends a sample twice); 0: do not ask."""
     distance_sensor_max_age_s: Annotated[float, Field(gt=0, le=10)] = 0.5
     """An older downward-range reading is not reported (``distance_to_ground_m`` None)."""
+    ground_truth: Literal["auto", "off"] = "auto"
+    """auto: ask for HIL_STATE_QUATERNION (simulator ground truth: PX4 SITL/SIH and the
+    emulator fill it, a real aircraft sends none) and offer it as ``ground_truth()`` once
+    samples arrive; it only feeds fake sensors and the evaluator."""
+    ground_truth_rate_hz: Annotated[float, Field(gt=0, le=250)] = 50.0
     confirm_modes: bool = True
     """After an accepted command, wait (bounded) until telemetry shows its mode/armed state
     (PX4 sends HEARTBEAT at 1 Hz, so up to ~1 s)."""
@@ -159,7 +167,16 @@ def _import_mavsdk() -> dict[str, Any]:
         from mavsdk.exceptions import MavsdkError
         from mavsdk.mavsdk import Configuration, Mavsdk
         from mavsdk.plugins.action import Action
+        from mavsdk.plugins.geofence import (
+            Circle,
+            FenceType,
+            Geofence,
+            GeofenceData,
+            Point,
+            Polygon,
+        )
         from mavsdk.plugins.gripper import Gripper
+        from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkMessage
         from mavsdk.plugins.mission import Mission, MissionItem, MissionPlan
         from mavsdk.plugins.offboard import Offboard, PositionNedYaw
         from mavsdk.plugins.param import Param
@@ -169,6 +186,9 @@ def _import_mavsdk() -> dict[str, Any]:
         raise PluginError(f"cannot import mavsdk ({exc}): {MAVSDK_REMEDY}") from exc
     return dict(ComponentType=ComponentType, MavsdkError=MavsdkError, Configuration=Configuration,
                 Mavsdk=Mavsdk, Action=Action, Gripper=Gripper, Mission=Mission,
+                Geofence=Geofence, GeofenceData=GeofenceData, Circle=Circle, Polygon=Polygon,
+                Point=Point, FenceType=FenceType, MavlinkDirect=MavlinkDirect,
+                MavlinkMessage=MavlinkMessage,
                 MissionItem=MissionItem, MissionPlan=MissionPlan, Offboard=Offboard,
                 PositionNedYaw=PositionNedYaw, Param=Param, MavFlightMode=MavFlightMode,
                 Telemetry=Telemetry)
@@ -283,6 +303,7 @@ class MavsdkVehicle:
 
     Config = MavsdkVehicleConfig
     description = "PX4 / MAVLink autopilot through MAVSDK 4.1 (telemetry, commands, offboard + watchdog)"
+    wall_clock = True  # MAVSDK and the autopilot run in host time
 
     def __init__(self, config: MavsdkVehicleConfig | None = None, *, clock: Clock | None = None,
                  safety: Any = None, mavlink_peer: MavlinkPeer | None = None,
@@ -321,6 +342,8 @@ class MavsdkVehicle:
         self._watchdog = OffboardWatchdog(wd, self._watchdog_hold)
         self._leaked: list[Any] = []
         self._now_ns: Callable[[], int] = time.monotonic_ns
+        self._truth = HilTruth(self._truth_flags) if cfg.ground_truth == "auto" else None
+        self._truth_handle: Any = None
 
     # ------------------------------------------------------------------------------------------
     # lifetime
@@ -383,12 +406,19 @@ class MavsdkVehicle:
                                 "cable / baud rate, and that the autopilot is powered and sending")
         self._system = system
         # Plugins only see messages that arrive after they exist: create them at once.
-        for name in ("Telemetry", "Action", "Offboard", "Mission", "Param", "Gripper"):
+        for name in ("Telemetry", "Action", "Offboard", "Mission", "Param", "Gripper",
+                     "Geofence", "MavlinkDirect"):
             self._plugins[name] = m[name](system)
+        if self._truth is not None:
+            truth, now_ns = self._truth, self._now_ns
+            self._truth_handle = self._plugins["MavlinkDirect"].subscribe_message(
+                "HIL_STATE_QUATERNION", lambda msg, _ud=None: truth.on_message(
+                    now_ns(), msg.fields_json))
         self._connected = True
         self._start_streams()
         self._watchdog.start()
         await self._request_rates()
+        await self._request_truth()
         await self._wait_first_telemetry(max(0.5, cfg.connect_timeout_s - (time.monotonic() - t0)))
         self._event(EVENT_LINK, f"connected to {cfg.url}", {"ok": True})
 
@@ -717,6 +747,61 @@ class MavsdkVehicle:
                 await self._bounded(f"set_rate_{name}()", setter)
             except VehicleError as exc:  # the autopilot may not honour it: telemetry still flows
                 log.warning("telemetry rate not set: %s", exc)
+
+    async def _request_truth(self) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL(HIL_STATE_QUATERNION): PX4 SIH streams its ground truth
+        only when asked; a refusal (a real aircraft) is not an error."""
+        if self._truth is None:
+            return
+        m = self._m
+        fields = {"target_system": 1, "target_component": 1, "command": 511,
+                  "confirmation": 0, "param1": float(HIL_MSG_ID),
+                  "param2": 1e6 / self.config.ground_truth_rate_hz, "param3": 0.0,
+                  "param4": 0.0, "param5": 0.0, "param6": 0.0, "param7": 0.0}
+        msg = m["MavlinkMessage"](message_name="COMMAND_LONG", system_id=0, component_id=0,
+                                  target_system_id=1, target_component_id=1,
+                                  fields_json=json.dumps(fields))
+        md = self._plugins["MavlinkDirect"]
+        try:
+            await self._bounded("request ground truth", lambda: md.send_command(msg))
+        except VehicleError as exc:
+            log.info("no ground-truth stream requested: %s", exc)
+
+    def _truth_flags(self) -> tuple[bool, bool, FlightMode]:
+        c = self._c
+        return c.armed, c.in_air, c.mode
+
+    def ground_truth(self) -> HilTruth | None:
+        """Simulator ground truth (HIL_STATE_QUATERNION), None with ``ground_truth: off``;
+        ``available()`` once a sample arrived (never on a real aircraft)."""
+        return self._truth
+
+    def summary(self) -> str:
+        return f"url {self.config.url}"
+
+    async def upload_geofence(self, geofence: Any) -> None:
+        """Upload the envelope's geofence (a circle around home or a NED polygon) as PX4's
+        inclusion fence; PX4 then enforces it itself (its GF_ACTION)."""
+        self._require("upload_geofence()")
+        home = await self._home("upload_geofence()")
+        if home is None:
+            raise VehicleError("NO_HOME", "upload_geofence()", None,
+                               "home is not known yet: wait for telemetry (GPS fix)")
+        m = self._m
+        polygons, circles = [], []
+        if geofence.polygon_ned_m:
+            pts = [ned_to_geodetic(home, n, e, 0.0) for n, e in geofence.polygon_ned_m]
+            polygons.append(m["Polygon"]([m["Point"](p.latitude_deg, p.longitude_deg) for p in pts],
+                                         m["FenceType"].INCLUSION))
+        if geofence.radius_m is not None:
+            circles.append(m["Circle"](m["Point"](home.latitude_deg, home.longitude_deg),
+                                       float(geofence.radius_m), m["FenceType"].INCLUSION))
+        data = m["GeofenceData"](polygons, circles)
+        gf = self._plugins["Geofence"]
+        await self._bounded("upload_geofence()", lambda: gf.upload_geofence(data),
+                            timeout_s=self.config.mission_upload_timeout_s)
+        self._event(EVENT_STATUS, "geofence uploaded",
+                    {"circles": len(circles), "polygons": len(polygons)})
 
     async def _wait_first_telemetry(self, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s

@@ -43,6 +43,7 @@ from eaglemission.drivers.vehicles.dynamics import (
     _Normals,
     attitude_from_acceleration,
     rangefinder_reading_m,
+    speeds_within_envelope,
     wrap_deg,
 )
 from numpy.typing import NDArray
@@ -145,9 +146,15 @@ class SimulatedVehicle:
     Config = SimulatedVehicleConfig
     description = "In-process deterministic PX4-like multicopter (truth + drifting estimate), no MAVLink"
 
+    simulated = True  # no aircraft behind it: the assembly asks no arming confirmation
+
     def __init__(self, config: SimulatedVehicleConfig | None = None, *, clock: Clock | None = None,
-                 simulation: SimulationConfig | None = None, **_context: Any) -> None:
-        self.config = cfg = config or SimulatedVehicleConfig()
+                 simulation: SimulationConfig | None = None, safety: Any = None,
+                 **_context: Any) -> None:
+        cfg = config or SimulatedVehicleConfig()
+        if safety is not None:  # the autopilot's own speeds inside the envelope (unless given)
+            cfg = cfg.model_copy(update={"dynamics": speeds_within_envelope(cfg.dynamics, safety)})
+        self.config = cfg
         self.clock: Clock = clock or MonotonicClock()
         self.simulation = simulation
         seed = cfg.seed if cfg.seed is not None else (simulation.seed if simulation else 0)
@@ -466,6 +473,41 @@ class SimulatedVehicle:
             self._gripper_closed = False
             self._event(EVENT_GRIPPER, "Gripper release", {"action": "release",
                                                            "position_ned_m": dyn.truth().position_ned_m})
+
+    # ------------------------------------------------------------------------------------------
+    # parameters (PX4 names) and ground truth
+    # ------------------------------------------------------------------------------------------
+    async def get_param(self, name: str) -> float:
+        """The PX4 parameter this model has an equivalent of (``PARAMETERS``); an unknown
+        name is refused like PX4 refuses one (``PARAM_UNKNOWN``)."""
+        entry = PARAMETERS.get(name)
+        if entry is None:
+            raise VehicleError("PARAM_UNKNOWN", "get_param()", name,
+                               f"the simulated vehicle has no parameter {name!r}; it models "
+                               f"{', '.join(sorted(PARAMETERS))}")
+        return float(entry[0](self.config))
+
+    async def set_param(self, name: str, value: float) -> None:
+        """Set one of the settable parameters (``RTL_RETURN_ALT``, ``COM_OF_LOSS_T``,
+        ``COM_DISARM_LAND``, ``COM_DL_LOSS_T``)."""
+        entry = PARAMETERS.get(name)
+        if entry is None or entry[1] is None:
+            raise VehicleError("PARAM_UNKNOWN" if entry is None else "PARAM_READ_ONLY",
+                               "set_param()", (name, value),
+                               f"{name!r} cannot be set on the simulated vehicle")
+        if not (math.isfinite(value) and value > 0):
+            raise VehicleError("PARAM_VALUE", "set_param()", (name, value),
+                               f"{name} must be a finite number > 0, got {value}")
+        with self._lock:
+            self.config = self.config.model_copy(update={entry[1]: float(value)})
+
+    def ground_truth(self) -> _SimulatedTruth:
+        """The model's true state (for the synthetic cameras and the evaluator)."""
+        return _SimulatedTruth(self)
+
+    def summary(self) -> str:
+        rf = "rangefinder" if self.config.rangefinder.enabled else "no rangefinder"
+        return f"in-process PX4-like model, seed {self.seed}, {rf}"
 
     # ------------------------------------------------------------------------------------------
     # sim world & tests
@@ -1027,3 +1069,42 @@ class SimulatedVehicle:
             flight_mode=self._mode if mode is None else mode,
             battery_remaining=self._battery, battery_voltage_v=self._battery_voltage(),
             position_valid=True, gps_fix=True, link_ok=True, armable=not armed)
+
+
+_OBL = {"position_no_rc": 0.0, "land": 4.0, "hold": 5.0}
+_DLL = {"none": 0.0, "hold": 1.0, "return": 2.0, "land": 3.0}
+PARAMETERS: dict[str, tuple[Any, str | None]] = {
+    "RTL_RETURN_ALT": (lambda c: c.rtl_return_altitude_m, "rtl_return_altitude_m"),
+    "COM_OF_LOSS_T": (lambda c: c.offboard_loss_timeout_s, "offboard_loss_timeout_s"),
+    "COM_DISARM_LAND": (lambda c: c.auto_disarm_after_land_s, "auto_disarm_after_land_s"),
+    "COM_DL_LOSS_T": (lambda c: c.link_loss_timeout_s, "link_loss_timeout_s"),
+    "COM_OBL_RC_ACT": (lambda c: _OBL[c.offboard_loss_action], None),
+    "NAV_DLL_ACT": (lambda c: _DLL[c.link_loss_action], None),
+    "MPC_XY_CRUISE": (lambda c: c.dynamics.cruise_speed_mps, None),
+    "MPC_XY_VEL_MAX": (lambda c: c.dynamics.max_horizontal_speed_mps, None),
+    "MPC_Z_VEL_MAX_UP": (lambda c: c.dynamics.max_up_speed_mps, None),
+    "MPC_Z_VEL_MAX_DN": (lambda c: c.dynamics.max_down_speed_mps, None),
+    "MPC_Z_V_AUTO_UP": (lambda c: c.dynamics.max_up_speed_mps, None),
+    "MPC_Z_V_AUTO_DN": (lambda c: c.dynamics.max_down_speed_mps, None),
+    "MPC_TKO_SPEED": (lambda c: c.dynamics.takeoff_speed_mps, None),
+    "MPC_LAND_SPEED": (lambda c: c.dynamics.land_speed_mps, None),
+}
+"""PX4 parameter -> (value from the config, settable config field or None)."""
+
+
+class _SimulatedTruth:
+    """:class:`~eaglemission.interfaces.truth.GroundTruth` of a :class:`SimulatedVehicle`."""
+
+    description = "the simulated vehicle's true state"
+
+    def __init__(self, vehicle: SimulatedVehicle) -> None:
+        self._v = vehicle
+
+    def available(self) -> bool:
+        return self._v._dyn is not None
+
+    def pose_at(self, timestamp_ns: int) -> tuple[XYZ, Quat] | None:
+        return self._v.true_pose_at(timestamp_ns)
+
+    def trajectory(self) -> list[VehicleState]:
+        return self._v.trajectory()

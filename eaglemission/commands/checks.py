@@ -35,6 +35,22 @@ def core_checks(cfg: MissionFile) -> list[str]:
         if not inside_geofence(s.geofence, wp.north_m, wp.east_m):
             problems.append(f"mission.route[{i}]: ({wp.north_m}, {wp.east_m}) lies outside "
                             f"safety.geofence: move it inside or enlarge the fence")
+    for cid in ("wide", "narrow"):
+        cam = getattr(cfg.cameras, cid)
+        if cam.calibration_file is None or "resolution_px" not in cam.model_fields_set:
+            continue
+        from eaglemission.calibration import load_calibration
+
+        try:
+            cal = load_calibration(cam.calibration_file)
+        except Exception as exc:  # noqa: BLE001 - reported as a problem of the file
+            problems.append(f"cameras.{cid}.calibration_file: {exc}")
+            continue
+        if tuple(cam.resolution_px) != (cal.width_px, cal.height_px):
+            problems.append(
+                f"cameras.{cid}.resolution_px: {list(cam.resolution_px)} disagrees with the "
+                f"calibration file ({cal.width_px}x{cal.height_px}): calibrate at the "
+                "resolution you fly, or drop resolution_px")
     if cfg.simulation is not None:
         sim = cfg.simulation
         if not inside_geofence(s.geofence, sim.target_north_m, sim.target_east_m):

@@ -2,14 +2,88 @@
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+from eaglemission.clock import Clock
+from eaglemission.context import SharedContext
+from eaglemission.interfaces.camera import Camera
+from eaglemission.interfaces.detector import Detector
+from eaglemission.interfaces.estimator import Estimator
+from eaglemission.interfaces.truth import GroundTruth
+from eaglemission.interfaces.vehicle import Vehicle
+
+if TYPE_CHECKING:
+    from eaglemission.config import MissionFile
+
+
+@dataclass(frozen=True)
+class FlightParts:
+    """Everything the assembly built for one flight (:mod:`eaglemission.assembly`).
+
+    ``vehicle`` is already wrapped in :class:`eaglemission.safety.SafeVehicle` and connected
+    when the mission runs; the cameras are open. ``truth`` and ``shared`` are for the
+    evaluator only (ground truth, the fake world): a mission never steers by them.
+    """
+
+    config: MissionFile
+    clock: Clock
+    vehicle: Vehicle
+    cameras: Mapping[str, Camera]
+    detectors: Mapping[str, Detector]
+    coarse: Estimator
+    fine: Estimator
+    shared: SharedContext
+    truth: GroundTruth | None = None
+    realtime: bool = False
+
+
+@dataclass(frozen=True)
+class MissionHooks:
+    """Optional observers a caller (CLI, campaign, tests) gives a mission."""
+
+    log_path: Path | None = None
+    keep_log: bool = True
+    """Keep the log's records in memory too (summaries, tests); campaigns turn it off."""
+    on_state: Callable[[float, str, str, str], None] | None = None
+    """Called with (t_s, new state, reason, failsafe action) on every state change."""
+    on_frame: Callable[[Any], None] | None = None
+    """Called with every grabbed frame (recording)."""
+    on_telemetry: Callable[[Any], None] | None = None
+    """Called with every telemetry snapshot the mission reads (recording)."""
+    record_all: bool = False
+    """Grab both cameras whenever airborne (so a recording has both streams)."""
+    grasp_callback: Callable[[], Any] | None = None
+    side_tasks: tuple[Callable[[Any], Any], ...] = field(default_factory=tuple)
+    """Coroutine functions ``f(mission)`` run beside the mission and cancelled at its end
+    (test harnesses: fault injection)."""
+
+
+@runtime_checkable
+class MissionOutcome(Protocol):
+    """What a mission run returns (the CLI prints ``report_lines()``)."""
+
+    final_state: str
+    reason: str
+    truth_success: bool | None
+    """The evaluator's verdict against ground truth; None when nothing was judged on truth."""
+
+    def report_lines(self) -> list[str]: ...
 
 
 @runtime_checkable
 class Mission(Protocol):
-    """A mission drives a vehicle from perception. ``run`` returns a result summary.
+    """A mission drives a vehicle from perception.
 
-    Construction: ``cls(config=<cls.Config instance>, mission_config=MissionFile, **context)``.
+    Construction: ``cls(config=<cls.Config instance>, parts=FlightParts, hooks=MissionHooks)``.
+    ``run`` flies until the mission is over (it ends the flight safely itself: land, return or
+    hold) and returns a :class:`MissionOutcome`. ``interrupt`` (called from the event loop,
+    e.g. on Ctrl-C) asks it to stop now with the given safe action ("hold", "land" or
+    "return"), through the safety wrapper; ``run`` then returns as soon as that action is done.
     """
 
     async def run(self) -> Any: ...
+
+    def interrupt(self, reason: str, action: str) -> None: ...

@@ -225,9 +225,9 @@ def test_random_mutations_of_shipped_config(path: str, value: Any) -> None:
 
 
 # -- the CLI: exit codes and no tracebacks ----------------------------------------------------
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "eaglemission.cli", *args],
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
 @pytest.mark.parametrize(
@@ -254,9 +254,70 @@ def test_validate_cli_names_the_path_and_value(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("name", [p.name for p in SHIPPED])
-def test_validate_cli_accepts_every_shipped_config(name: str) -> None:
-    r = run_cli("validate", str(REPO / "configs" / name))
+def test_validate_cli_accepts_every_shipped_config(name: str, tmp_path: Path) -> None:
+    cwd = None
+    if name == "replay.yaml":  # it names a recording relative to the working directory
+        from eaglemission.recording import RunRecorder
+        from eaglemission.types import VehicleState
+
+        with RunRecorder(tmp_path / "recordings" / "run1") as rec:
+            rec.write_state(VehicleState(1_000_000_000, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
+                                         (1.0, 0.0, 0.0, 0.0)))
+        cwd = tmp_path
+    r = run_cli("validate", str(REPO / "configs" / name), cwd=cwd)
     assert r.returncode == 0, r.stderr
+
+
+def test_validate_cli_refuses_a_replay_without_its_recording(tmp_path: Path) -> None:
+    r = run_cli("validate", str(REPO / "configs" / "replay.yaml"), cwd=tmp_path)
+    assert r.returncode == 2
+    assert "vehicle.params.path: 'recordings/run1' holds no recorded run" in r.stderr
+
+
+def test_validate_cli_refuses_synthetic_cameras_without_a_world(tmp_path: Path) -> None:
+    data = shipped_data()
+    del data["simulation"]
+    f = tmp_path / "m.yaml"
+    f.write_text(yaml.safe_dump(data))
+    r = run_cli("validate", str(f))
+    assert r.returncode == 2
+    assert "cameras.wide.type: a synthetic camera renders the simulated world" in r.stderr
+    assert "cameras.narrow.type: a synthetic camera renders the simulated world" in r.stderr
+
+
+def test_validate_cli_refuses_a_resolution_that_disagrees_with_the_calibration(
+        tmp_path: Path) -> None:
+    data = yaml.safe_load((REPO / "configs" / "field_basler_px4.yaml").read_text())
+    for cid in ("wide", "narrow"):
+        data["cameras"][cid]["calibration_file"] = str(
+            REPO / "configs" / data["cameras"][cid]["calibration_file"])
+    data["cameras"]["narrow"]["resolution_px"] = [800, 600]
+    f = tmp_path / "m.yaml"
+    f.write_text(yaml.safe_dump(data))
+    r = run_cli("validate", str(f))
+    assert r.returncode == 2
+    assert ("cameras.narrow.resolution_px: [800, 600] disagrees with the calibration file "
+            "(1280x960)") in r.stderr
+
+
+def test_moved_mission_keys_are_read_with_a_warning(tmp_path: Path) -> None:
+    data = shipped_data()
+    data["detector"]["params"] = {"preset": "field"}
+    data["mission"]["params"] = {"detector_downscale": 3, "narrow_threshold": "otsu"}
+    f = tmp_path / "m.yaml"
+    f.write_text(yaml.safe_dump(data))
+    warnings: list[str] = []
+    cfg = load_config(f, warnings=warnings)
+    assert cfg.detector.params["downscale"] == 3
+    assert cfg.detector.per_camera["narrow"]["regions"]["threshold"] == "otsu"
+    assert "detector_downscale" not in cfg.mission.params
+    assert any("moved to detector.params.downscale" in w for w in warnings)
+    assert any("moved to detector.per_camera.narrow.regions.threshold" in w for w in warnings)
+    r = run_cli("validate", str(f))
+    assert r.returncode == 0, r.stderr
+    assert "warning: mission.params.detector_downscale: moved to detector.params.downscale" \
+        in r.stderr
+    assert data["mission"]["params"] == {"detector_downscale": 3, "narrow_threshold": "otsu"}
 
 
 def test_validate_cli_embedded_default() -> None:

@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicleConfig
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import Fault, run_simulation, vehicle_params
+from eaglemission.missions.sim import Fault, effective_vehicle_config, run_simulation
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile
@@ -41,7 +40,7 @@ def _assert_came_down(cfg: MissionFile, out, recs: list[dict], action: str) -> f
                                 f"{(last.timestamp_ns - t_cmd) / 1e9:.1f} s after the command")
     down = after[down_i]
     assert all(not s.armed and s.position_ned_m[2] == 0.0 for s in after[down_i:])
-    vp = SimulatedVehicleConfig.model_validate(vehicle_params(cfg))
+    vp = effective_vehicle_config(cfg)
     dp = vp.dynamics
     alt_m = -start.position_ned_m[2]
     settle_s = vp.land_detect_s + vp.auto_disarm_after_land_s + 5.0  # + margin
@@ -139,7 +138,7 @@ def test_geofence_at_the_target(fast_config: MissionFile, tmp_path: Path) -> Non
 
 def test_record_writes_both_streams_and_telemetry(fast_config: MissionFile,
                                                   tmp_path: Path) -> None:
-    from eaglemission.drivers.cameras.recorder import read_camera_model, read_telemetry
+    from eaglemission.recording import read_camera_model, read_telemetry
 
     rec = tmp_path / "rec"
     out = run_simulation(fast_config, record_dir=rec,

@@ -8,17 +8,17 @@ import time
 import cv2
 import numpy as np
 import pytest
-from eaglemission.drivers.cameras.recorder import (
-    RunRecorder,
-    read_camera_model,
-    read_telemetry,
-    telemetry_history,
-)
 from eaglemission.drivers.cameras.replay import ReplayCamera
 
 from eaglemission import registry
 from eaglemission.errors import CameraError, EndOfStream, FrameError, GrabTimeout
 from eaglemission.geometry import CameraModel
+from eaglemission.recording import (
+    RunRecorder,
+    read_camera_model,
+    read_telemetry,
+    telemetry_history,
+)
 from eaglemission.types import FlightMode, Frame, GeoPoint, VehicleState
 
 

@@ -1,5 +1,6 @@
-"""Recorded runs: the folder format, its writer (:class:`RunRecorder`, behind the mission's
-``--record DIR``) and the telemetry reader. Format (docs/cameras.md, "Recorded runs")::
+"""Recorded runs (core: written by any flight, read by the ``replay`` camera and vehicle): the
+folder format, its writer (:class:`RunRecorder`, behind ``eaglemission run --record DIR``) and
+the telemetry reader. Format (docs/cameras.md, "Recorded runs")::
 
     <run>/
       telemetry.jsonl                 one VehicleState per line (JSON, as dataclasses.asdict)
@@ -102,6 +103,31 @@ def read_telemetry(run_dir: str | Path) -> list[VehicleState]:
     return out
 
 
+def recording_start_ns(run_dir: str | Path) -> int | None:
+    """The first stamp of a recorded run: its first telemetry record, else its earliest
+    frame; None when the folder holds no recorded run."""
+    run = Path(run_dir)
+    tel = run / TELEMETRY
+    if tel.exists():
+        with tel.open("r", encoding="utf-8") as f:
+            for line in f:
+                if line.strip():
+                    try:
+                        return int(json.loads(line)["timestamp_ns"])
+                    except (ValueError, KeyError, TypeError):
+                        break
+    stamps = []
+    for csv_path in run.glob(f"*/{FRAMES_CSV}"):
+        with csv_path.open("r", encoding="utf-8", newline="") as f:
+            rows = list(csv.reader(f))[1:2]
+        if rows:
+            try:
+                stamps.append(int(rows[0][1]))
+            except (ValueError, IndexError):
+                pass
+    return min(stamps) if stamps else None
+
+
 def telemetry_history(run_dir: str | Path, *, max_extrapolation_s: float = 0.05
                       ) -> TelemetryHistory:
     """A :class:`TelemetryHistory` holding the whole run (``state_at`` for replayed frames)."""
@@ -153,11 +179,15 @@ class RunRecorder:
     jpeg_quality : for ``"jpg"``
     queue_frames : frames waiting for the writer thread before new ones are dropped (counted
         in ``stats["dropped_frames"]``)
+    when_full : ``"drop"`` (real time: never block the caller) or ``"wait"`` (virtual time:
+        the caller waits for room, so a simulated flight records every frame it grabbed)
     """
 
     def __init__(self, run_dir: str | Path, *, image_format: Literal["png", "jpg"] = "png",
                  jpeg_quality: int = 95, queue_frames: int = 64,
-                 models: Mapping[str, CameraModel] | None = None) -> None:
+                 models: Mapping[str, CameraModel] | None = None,
+                 when_full: Literal["drop", "wait"] = "drop") -> None:
+        self.when_full = when_full
         self.run_dir = Path(run_dir)
         if (self.run_dir / TELEMETRY).exists() or any(self.run_dir.glob(f"*/{FRAMES_CSV}")):
             raise FileExistsError(f"{self.run_dir}: already holds a recorded run: choose a new "
@@ -187,6 +217,12 @@ class RunRecorder:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def set_models(self, models: Mapping[str, CameraModel]) -> None:
+        """Write every camera's model (``<camera_id>/camera.json``)."""
+        for cid, model in models.items():
+            self.write_camera_model(model if model.camera_id == cid
+                                    else model.with_(camera_id=cid))
+
     def write_camera_model(self, model: CameraModel) -> None:
         d = self.run_dir / model.camera_id
         d.mkdir(parents=True, exist_ok=True)
@@ -199,7 +235,10 @@ class RunRecorder:
         if self._closed:
             return False
         try:
-            self._queue.put_nowait(frame)
+            if self.when_full == "wait":
+                self._queue.put(frame, timeout=60.0)
+            else:
+                self._queue.put_nowait(frame)
             return True
         except queue.Full:
             with self._lock:

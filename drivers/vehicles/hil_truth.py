@@ -1,0 +1,148 @@
+"""Ground truth from HIL_STATE_QUATERNION (MAVLink message 115).
+
+PX4 SITL with SIH fills HIL_STATE_QUATERNION from its ``*_groundtruth`` topics once a client
+asks for the stream (MAV_CMD_SET_MESSAGE_INTERVAL); the bundled emulator does the same.
+Recorded facts (``../shared/data/px4_sitl_tlogs/README.md``, "Ground truth"): ``time_usec`` is
+always 0 (samples are stamped on receipt), ``lat``/``lon`` degE7 and ``alt`` mm AMSL are the
+true position, ``vx``/``vy``/``vz`` cm/s the true NED velocity, ``attitude_quaternion`` the true
+attitude (w may be negative). A real aircraft sends none.
+
+:class:`HilTruth` turns the samples into NED metres relative to the first sample (the true
+start point, where the synthetic world's origin is: the vehicle is on the ground when the
+mission connects) and implements :class:`~eaglemission.interfaces.truth.GroundTruth`.
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import math
+import threading
+from array import array
+from collections.abc import Callable
+from typing import Any
+
+from eaglemission.geometry import geodetic_to_ned
+from eaglemission.types import XYZ, FlightMode, GeoPoint, Quat, VehicleState
+
+MSG_ID = 115
+MAX_EXTRAPOLATION_NS = 100_000_000
+
+
+def parse_hil_state(fields: dict[str, Any]) -> tuple[GeoPoint, XYZ, Quat]:
+    """(true position, NED velocity m/s, attitude (w, x, y, z) with w >= 0) of one message's
+    fields; raises ValueError on a missing or non-finite field."""
+    try:
+        q = [float(v) for v in fields["attitude_quaternion"]]
+        geo = GeoPoint(float(fields["lat"]) * 1e-7, float(fields["lon"]) * 1e-7,
+                       float(fields["alt"]) * 1e-3)
+        vel = (float(fields["vx"]) * 0.01, float(fields["vy"]) * 0.01, float(fields["vz"]) * 0.01)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"HIL_STATE_QUATERNION: malformed fields ({exc})") from exc
+    if len(q) != 4 or not all(math.isfinite(v) for v in (*q, *vel, geo.latitude_deg,
+                                                           geo.longitude_deg,
+                                                           geo.altitude_amsl_m)):
+        raise ValueError("HIL_STATE_QUATERNION: non-finite or incomplete fields")
+    n = math.sqrt(sum(v * v for v in q))
+    if n < 1e-6:
+        raise ValueError("HIL_STATE_QUATERNION: zero attitude quaternion")
+    sign = -1.0 if q[0] < 0 else 1.0
+    return geo, vel, (sign * q[0] / n, sign * q[1] / n, sign * q[2] / n, sign * q[3] / n)
+
+
+class HilTruth:
+    """Thread-safe record of true states from HIL_STATE_QUATERNION samples.
+
+    ``flags()`` gives (armed, in_air, mode) from the autopilot's telemetry at the time of a
+    sample (the truth message has none; the evaluator needs them).
+    """
+
+    description = "HIL_STATE_QUATERNION from the autopilot (simulator ground truth)"
+
+    def __init__(self, flags: Callable[[], tuple[bool, bool, FlightMode]] | None = None,
+                 max_s: float = 7200.0, rate_hz: float = 50.0) -> None:
+        self._flags = flags or (lambda: (False, False, FlightMode.UNKNOWN))
+        self._lock = threading.Lock()
+        self.origin: GeoPoint | None = None
+        self._t = array("q")
+        self._c = [array("d") for _ in range(10)]  # n e d vn ve vd qw qx qy qz
+        self._f = array("B")  # bit 0 armed, bit 1 in air
+        self._modes: list[FlightMode] = []
+        self._max = int(max_s * rate_hz * 1.5)
+        self.errors = 0
+
+    def on_message(self, stamp_ns: int, fields_json: str) -> None:
+        """A received message (MAVSDK's thread), stamped on receipt."""
+        try:
+            geo, vel, q = parse_hil_state(json.loads(fields_json))
+        except (ValueError, json.JSONDecodeError):
+            self.errors += 1
+            return
+        self.add(stamp_ns, geo, vel, q)
+
+    def add(self, stamp_ns: int, geo: GeoPoint, vel: XYZ, q: Quat) -> None:
+        armed, in_air, mode = self._flags()
+        with self._lock:
+            if self._t and stamp_ns <= self._t[-1]:
+                return
+            if self.origin is None:
+                self.origin = geo
+            n, e, d = geodetic_to_ned(self.origin, geo)
+            self._t.append(int(stamp_ns))
+            for col, v in zip(self._c, (n, e, d, *vel, *q)):
+                col.append(float(v))
+            self._f.append((1 if armed else 0) | (2 if in_air else 0))
+            self._modes.append(mode)
+            if len(self._t) > self._max:  # keep the newest (a flight is far shorter)
+                k = len(self._t) - self._max
+                del self._t[:k]
+                for col in self._c:
+                    del col[:k]
+                del self._f[:k]
+                del self._modes[:k]
+
+    # -- GroundTruth -----------------------------------------------------------------------
+    def available(self) -> bool:
+        with self._lock:
+            return len(self._t) > 0
+
+    def pose_at(self, timestamp_ns: int) -> tuple[XYZ, Quat] | None:
+        with self._lock:
+            t = self._t
+            if not t or timestamp_ns < t[0]:
+                return None
+            if timestamp_ns >= t[-1]:
+                dt_ns = timestamp_ns - t[-1]
+                if dt_ns > MAX_EXTRAPOLATION_NS:
+                    return None
+                c = self._c
+                dt = dt_ns * 1e-9
+                pos = (c[0][-1] + c[3][-1] * dt, c[1][-1] + c[4][-1] * dt, c[2][-1] + c[5][-1] * dt)
+                return pos, (c[6][-1], c[7][-1], c[8][-1], c[9][-1])
+            j = bisect.bisect_right(t, timestamp_ns)
+            i = j - 1
+            span = t[j] - t[i]
+            s = (timestamp_ns - t[i]) / span if span > 0 else 0.0
+            c = self._c
+            pos = tuple(c[k][i] + s * (c[k][j] - c[k][i]) for k in range(3))
+            qa = [c[k][i] for k in range(6, 10)]
+            qb = [c[k][j] for k in range(6, 10)]
+        if sum(a * b for a, b in zip(qa, qb)) < 0:
+            qb = [-v for v in qb]
+        q = [a + s * (b - a) for a, b in zip(qa, qb)]
+        n = math.sqrt(sum(v * v for v in q)) or 1.0
+        return pos, (q[0] / n, q[1] / n, q[2] / n, q[3] / n)  # type: ignore[return-value]
+
+    def trajectory(self) -> list[VehicleState]:
+        with self._lock:
+            t = list(self._t)
+            cols = [list(c) for c in self._c]
+            flags = list(self._f)
+            modes = list(self._modes)
+        out = []
+        for k, ts in enumerate(t):
+            n, e, d, vn, ve, vd, qw, qx, qy, qz = (c[k] for c in cols)
+            out.append(VehicleState(ts, (n, e, d), (vn, ve, vd), (qw, qx, qy, qz),
+                                    armed=bool(flags[k] & 1), in_air=bool(flags[k] & 2),
+                                    flight_mode=modes[k]))
+        return out

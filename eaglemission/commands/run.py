@@ -1,0 +1,219 @@
+"""``eaglemission run [CONFIG]``: fly what the mission file says, through the assembly.
+
+Without CONFIG it flies the embedded ``configs/sitl_synthetic.yaml`` (simulated vehicle +
+synthetic cameras, virtual time). ``--vehicle emulator`` is a shortcut: the same file with its
+vehicle replaced by the ``mavsdk`` vehicle at a PX4-like emulator (``eaglemission sitl-vehicle``,
+started here as its own process on a free port). Exit codes: README, "Exit codes".
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from eaglemission.commands import Command
+
+EMULATOR_START_TIMEOUT_S = 20.0
+
+
+def _add(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", nargs="?", help="mission YAML (default: embedded sitl_synthetic.yaml)")
+    p.add_argument("--vehicle", choices=("simulated", "emulator"), default=None,
+                   help="override the file's vehicle: simulated (in-process, virtual time) or "
+                        "emulator (the mavsdk vehicle against `eaglemission sitl-vehicle` "
+                        "started on a free port; real time)")
+    p.add_argument("--plot", metavar="PNG", help="draw trajectory, target and state changes")
+    p.add_argument("--record", metavar="DIR", help="record both camera streams + telemetry "
+                                                   "(replay format: configs/replay.yaml)")
+    p.add_argument("--log", metavar="FILE", help="JSON-lines mission log (default: none)")
+    p.add_argument("--realtime", action="store_true",
+                   help="run at wall-clock speed even when everything could run in virtual time")
+    p.add_argument("--detector", metavar="NAME",
+                   help="fly with this detector plugin instead of the config's (e.g. mss)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="open the cameras, grab and check a frame each, connect, check home, "
+                        "GPS, rangefinder and the autopilot's failsafe parameters; never arm")
+    p.add_argument("--yes", action="store_true",
+                   help="do not ask before arming a real (non-simulated) vehicle")
+
+
+def _print(console: Any, text: str) -> None:
+    console.print(text, markup=False, highlight=False)
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def emulator_process(mission_path: str, status_json: str | None = None) -> Iterator[str]:
+    """Start ``eaglemission sitl-vehicle`` for a mission file on a free port, as its own
+    process; yields the MAVSDK URL to connect to; stops it (SIGTERM, then SIGKILL) on exit."""
+    port = _free_udp_port()
+    cmd = [sys.executable, "-m", "eaglemission.cli", "sitl-vehicle", "--mission", mission_path,
+           "--mavlink", f"udpout://127.0.0.1:{port}"]
+    if status_json:
+        cmd += ["--status-json", status_json]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)
+    try:
+        yield f"udpin://127.0.0.1:{port}"
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=5.0)
+        if proc.stderr is not None:
+            proc.stderr.close()
+
+
+def _mission_file_path(config: str | None) -> tuple[str, Any]:
+    """A path to the mission file (the embedded one is written to a temporary file)."""
+    if config is not None:
+        return config, None
+    from eaglemission.config import DEFAULT_CONFIG
+
+    tmp = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)  # noqa: SIM115
+    tmp.write(resources.files("eaglemission.configs").joinpath(DEFAULT_CONFIG).read_text("utf-8"))
+    tmp.close()
+    return tmp.name, tmp
+
+
+def _confirm(question: str) -> bool:
+    if not sys.stdin.isatty():
+        sys.stderr.write(f"{question} -- no terminal to answer on: pass --yes to fly "
+                         "without asking\n")
+        return False
+    try:
+        answer = input(f"{question} [y/N] ")
+    except EOFError:
+        return False
+    return answer.strip().lower() in ("y", "yes")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from eaglemission import assembly
+    from eaglemission.commands.checks import run_checks
+    from eaglemission.config import MissionFile, load_config
+    from eaglemission.errors import ConfigError, EagleMissionError
+    from eaglemission.interfaces import MissionHooks
+
+    console = Console()
+    err = Console(stderr=True)
+    warnings: list[str] = []
+    try:
+        cfg = load_config(args.config, warnings=warnings)
+        problems = run_checks(cfg)
+        if problems:
+            raise ConfigError(problems, source=args.config or "<embedded>")
+    except ConfigError as exc:
+        _print(err, f"invalid: {exc}")
+        return assembly.EXIT_CONFIG
+    for w in warnings:
+        _print(err, f"warning: {w}")
+    data = cfg.model_dump()
+    if args.detector:
+        data["detector"] = {"type": args.detector, "params": {}}
+    if args.vehicle == "simulated":
+        data["vehicle"] = {"type": "simulated", "params": {}}
+    source = args.config or "<embedded sitl_synthetic.yaml>"
+    _print(console, f"eaglemission run {source}")
+
+    def on_header(lines: list[str]) -> None:
+        for line in lines:
+            _print(console, f"  {line}")
+
+    def on_state(t_s: float, state: str, reason: str, action: str) -> None:
+        extra = f" -> {action}" if action else ""
+        _print(console, f"  {t_s:7.2f} s  {state:<16} ({reason}{extra})")
+
+    recorder = None
+    hooks_kw: dict[str, Any] = {}
+    if args.record:
+        from eaglemission.recording import RunRecorder
+
+        try:
+            virtual = not (args.realtime or args.vehicle == "emulator"
+                           or assembly.plan(cfg).wall_clock)
+        except EagleMissionError as exc:
+            _print(err, f"invalid: {exc}")
+            return assembly.EXIT_CONFIG
+        try:
+            recorder = RunRecorder(Path(args.record), when_full="wait" if virtual else "drop")
+        except (FileExistsError, OSError) as exc:
+            _print(err, f"error: --record {args.record}: {exc}")
+            return assembly.EXIT_CONFIG
+        hooks_kw.update(on_frame=recorder.write_frame, on_telemetry=recorder.write_state,
+                        record_all=True)
+
+    def prepare(asm: Any) -> None:
+        if recorder is not None:
+            recorder.set_models({c: cam.model for c, cam in asm.cameras.items()})
+
+    options = assembly.FlightOptions(
+        realtime=args.realtime, dry_run=args.dry_run,
+        confirm=None if (args.yes or args.vehicle == "emulator") else _confirm,
+        handle_signals=True, on_header=on_header, on_line=lambda s: _print(console, s),
+        prepare=prepare,
+        hooks=MissionHooks(log_path=Path(args.log) if args.log else None, on_state=on_state,
+                           **hooks_kw))
+    tmp = None
+    try:
+        with contextlib.ExitStack() as stack:
+            if args.vehicle == "emulator":
+                path, tmp = _mission_file_path(args.config)
+                url = stack.enter_context(emulator_process(path))
+                data["vehicle"] = {"type": "mavsdk",
+                                   "params": {"url": url, "connect_timeout_s": 30}}
+            try:
+                cfg = MissionFile.model_validate(data)
+            except ValueError as exc:
+                _print(err, f"invalid: {exc}")
+                return assembly.EXIT_CONFIG
+            t0 = time.perf_counter()
+            result = assembly.fly_sync(cfg, options)
+    finally:
+        if recorder is not None:
+            recorder.close()
+        if tmp is not None:
+            os.unlink(tmp.name)
+    if result.outcome is not None:
+        for line in result.outcome.report_lines():
+            _print(console, line)
+        if args.plot and hasattr(result.outcome, "plot"):
+            result.outcome.plot(Path(args.plot))
+            _print(console, f"plot written to {args.plot}")
+    if args.log and result.outcome is not None:
+        _print(console, f"log written to {args.log}")
+    if args.record and recorder is not None:
+        _print(console, f"recording written to {args.record} ({recorder.stats})")
+    if result.error:
+        _print(err, f"error: {result.error}")
+    _print(console, f"exit {result.exit_code} ({EXIT_NAMES.get(result.exit_code, '?')}) after "
+                    f"{time.perf_counter() - t0:.1f} s")
+    return result.exit_code
+
+
+EXIT_NAMES = {0: "DONE", 1: "error", 2: "config refused", 3: "FAILSAFE",
+              4: "connection failed", 5: "preflight refused", 6: "DONE, but off on ground truth",
+              130: "interrupted"}
+
+COMMAND = Command("fly a mission file (simulation, emulator, SITL, replay or field)", _add, _run)

@@ -1,0 +1,88 @@
+"""``eaglemission run --dry-run``: everything short of arming, checked and reported.
+
+Each check is ``(name, passed, detail)``. Cameras: one frame grabbed from each (bounded) and
+compared with its calibration (resolution). Vehicle: link, home, position/GPS, armable, on the
+ground, battery, downward rangefinder; the autopilot's failsafe parameters when it has any.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable
+from typing import Any
+
+from eaglemission.clock import run_blocking
+from eaglemission.names import PX4_FAILSAFE_PARAMS
+
+Check = tuple[str, bool, str]
+
+
+async def _grab(cam: Any, timeout_s: float) -> Any:
+    async with asyncio.timeout(timeout_s + 5.0):
+        return await run_blocking(lambda: cam.grab(timeout_s=timeout_s))
+
+
+async def camera_checks(cameras: dict[str, Any], *, timeout_s: float = 5.0) -> list[Check]:
+    out: list[Check] = []
+    for cid, cam in cameras.items():
+        m = cam.model
+        try:
+            frame = await _grab(cam, timeout_s)
+        except Exception as exc:  # noqa: BLE001 - every failure is a failed check
+            out.append((f"camera {cid}: frame", False, f"{type(exc).__name__}: {exc}"))
+            continue
+        h, w = frame.image.shape[:2]
+        same = (w, h) == (m.width_px, m.height_px)
+        out.append((f"camera {cid}: frame", same,
+                    f"{w}x{h} px, calibration {m.width_px}x{m.height_px} px"
+                    + ("" if same else ": fix the device's Width/Height or the calibration")))
+    return out
+
+
+def vehicle_checks(state: Any) -> list[Check]:
+    s = state
+    rng = s.distance_to_ground_m
+    return [
+        ("vehicle: link", bool(s.link_ok), "telemetry flowing" if s.link_ok else "no telemetry"),
+        ("vehicle: home", s.home is not None,
+         "home known" if s.home is not None else "no home position yet (GPS fix?)"),
+        ("vehicle: position", bool(s.position_valid and s.gps_fix),
+         f"position valid {s.position_valid}, GPS fix {s.gps_fix}"),
+        ("vehicle: armable", bool(s.armable), "pre-arm checks pass" if s.armable
+         else "the autopilot reports not armable (pre-arm checks)"),
+        ("vehicle: on the ground", not s.in_air, "landed" if not s.in_air else "in the air"),
+        ("vehicle: battery", bool(math.isfinite(s.battery_remaining)
+                                  and s.battery_remaining > 0.3),
+         f"{s.battery_remaining:.0%}"),
+        ("vehicle: downward rangefinder", True,
+         f"{rng:.2f} m" if rng is not None else "warning: no reading (normal on the ground, "
+         "below the sensor's minimum range; in the air the mission warns again and the grasp "
+         "height then follows the altitude estimate)"),
+    ]
+
+
+async def parameter_check(driver: Any, timeout_s: float = 5.0) -> list[Check]:
+    get = getattr(driver, "get_param", None)
+    if get is None:
+        return [("autopilot parameters", True, "this vehicle has no parameters to read")]
+    values, missing = {}, []
+    for name in PX4_FAILSAFE_PARAMS:
+        try:
+            async with asyncio.timeout(timeout_s):
+                values[name] = float(await get(name))
+        except Exception:  # noqa: BLE001 - reported below
+            missing.append(name)
+    text = ", ".join(f"{k}={v:g}" for k, v in values.items())
+    if missing:
+        text += f"; not answered: {', '.join(missing)}"
+    return [("autopilot parameters", bool(values), text or "none answered")]
+
+
+async def dry_run_checks(asm: Any, say: Callable[[str], None]) -> list[Check]:
+    checks = await camera_checks(asm.cameras)
+    checks += vehicle_checks(asm.vehicle.state())
+    checks += await parameter_check(asm.driver)
+    for name, ok, detail in checks:
+        say(f"  [{'ok' if ok else 'FAIL'}] {name}: {detail}")
+    return checks

@@ -1,0 +1,229 @@
+"""Every deployment is a config flown through the one assembly (issue 11), tested with real
+processes: ``eaglemission run`` against ``eaglemission sitl-vehicle`` on a free port, the
+replay of a recording, the field path on the genicam wheel's GenTL test producer, an
+unreachable autopilot, and Ctrl-C in flight."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+from deployment_helpers import (
+    REPO,
+    cli,
+    free_udp_port,
+    log_records,
+    mission_file,
+    read_status,
+    run_env,
+    sitl_vehicle,
+)
+
+pytestmark = pytest.mark.slow
+ON_GROUND = 1  # MAV_LANDED_STATE_ON_GROUND
+
+
+def _states(recs: list[dict]) -> list[str]:
+    return [r["new"] for r in recs if r["kind"] == "state"]
+
+
+def _wait_landed(status: Path, timeout_s: float = 30.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        st = read_status(status)
+        if st["landed_state"] == ON_GROUND and not st["armed"]:
+            return st
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the emulator is not landed and disarmed: {st}")
+        time.sleep(0.2)
+
+
+def test_replay_config_reads_its_frames_from_the_recording(fast_config, tmp_path: Path) -> None:
+    from eaglemission.missions.sim import run_simulation
+
+    run = tmp_path / "recordings" / "run1"
+    rec = run_simulation(fast_config, record_dir=run)
+    assert rec.final_state == "DONE"
+    recorded = {}
+    for cam in ("wide", "narrow"):
+        with (run / cam / "frames.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        recorded[cam] = {int(r["timestamp_ns"]): int(r["seq"]) for r in rows}
+        # virtual time: the recorder waits for room, so every grabbed frame is on disk
+        assert len(rows) >= rec.result.frames_processed[cam], cam
+    # the shipped replay.yaml, with the detector the recording was flown with
+    replay = yaml.safe_load((REPO / "configs" / "replay.yaml").read_text())
+    replay["detector"] = fast_config.detector.model_dump()
+    (tmp_path / "replay.yaml").write_text(yaml.safe_dump(replay, sort_keys=False))
+    p = subprocess.run(cli("run", "replay.yaml", "--log", "replay.jsonl"),
+                       cwd=tmp_path, capture_output=True, text=True, timeout=600, env=run_env())
+    assert "Traceback" not in p.stderr, p.stderr
+    assert "vehicle: replay (recording recordings/run1, open loop)" in p.stdout
+    assert "camera wide: replay" in p.stdout and "camera narrow: replay" in p.stdout
+    assert "synthetic" not in p.stdout
+    recs = log_records(tmp_path / "replay.jsonl")
+    dets = [r for r in recs if r["kind"] == "detection"]
+    assert len(dets) > 100
+    for d in dets:  # every processed frame is a recorded one: same stamp, same sequence number
+        assert recorded[d["camera"]].get(d["frame_t_ns"]) == d["seq"], d
+    for cam in ("wide", "narrow"):
+        n = sum(d["camera"] == cam for d in dets)
+        assert 0 < n <= len(recorded[cam])
+    # open loop, same frames, same virtual clock: the replayed mission takes the same course
+    assert _states(recs) == [s for _, s, _ in rec.result.states[1:]]
+    assert p.returncode == 0, p.stdout + p.stderr
+
+
+def test_mavsdk_config_flies_against_a_sitl_vehicle_process(tmp_path: Path) -> None:
+    port = free_udp_port()
+    url = f"udpin://127.0.0.1:{port}"
+    mission = mission_file(tmp_path, "mavsdk.yaml", vehicle={
+        "_replace": True, "type": "mavsdk", "params": {"url": url, "connect_timeout_s": 20}})
+    status = tmp_path / "emulator.json"
+    with sitl_vehicle(REPO / "configs" / "sitl_synthetic.yaml", port, status):
+        p = subprocess.run(cli("run", str(mission), "--yes", "--log", "run.jsonl",
+                               "--plot", "run.png"),
+                           cwd=tmp_path, capture_output=True, text=True, timeout=400,
+                           env=run_env())
+        st = _wait_landed(status)
+    assert "Traceback" not in p.stderr, p.stderr
+    assert f"vehicle: mavsdk (url {url})" in p.stdout
+    assert "ground truth: HIL_STATE_QUATERNION" in p.stdout
+    assert "clock: wall clock" in p.stdout
+    recs = log_records(tmp_path / "run.jsonl")
+    states = _states(recs)
+    assert "GRASP_READY" in states and states[-1] == "DONE", (states, p.stdout[-2000:])
+    ev = [r for r in recs if r["kind"] == "evaluation"][-1]
+    assert ev["judged_on"] == "truth" and ev["landed"], ev
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    assert (tmp_path / "run.png").stat().st_size > 10_000
+    assert abs(st["true_position_ned_m"][2]) < 0.2
+
+
+def test_unreachable_autopilot_fails_within_connect_timeout_with_one_line(tmp_path: Path) -> None:
+    port = free_udp_port()  # nobody sends there
+    mission = mission_file(tmp_path, "nobody.yaml", vehicle={
+        "_replace": True, "type": "mavsdk",
+        "params": {"url": f"udpin://127.0.0.1:{port}", "connect_timeout_s": 3}})
+    t0 = time.monotonic()
+    p = subprocess.run(cli("run", str(mission), "--yes"), capture_output=True, text=True,
+                       timeout=120, env=run_env())
+    elapsed = time.monotonic() - t0
+    assert p.returncode == 4, p.stdout + p.stderr
+    errors = [line for line in p.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "no autopilot heard" in errors[0], p.stderr
+    assert "Traceback" not in p.stderr
+    assert "exit 4 (connection failed) after" in p.stdout
+    # the flight's own wait is bounded by connect_timeout_s (the rest is Python start-up)
+    flight_s = float(p.stdout.split("exit 4 (connection failed) after ")[1].split(" s")[0])
+    assert 2.9 <= flight_s <= 3.0 + 2.5, flight_s
+    assert elapsed < 60
+
+
+@pytest.mark.parametrize("action", ["land", "hold"])
+def test_sigint_in_flight_commands_the_configured_stop(tmp_path: Path, action: str) -> None:
+    port = free_udp_port()
+    mission = mission_file(
+        tmp_path, "int.yaml",
+        vehicle={"_replace": True, "type": "mavsdk",
+                 "params": {"url": f"udpin://127.0.0.1:{port}", "connect_timeout_s": 20}},
+        safety={"on_interrupt": action, "interrupt_timeout_s": 60})
+    status = tmp_path / "emulator.json"
+    log = tmp_path / "int.jsonl"
+    with sitl_vehicle(REPO / "configs" / "sitl_synthetic.yaml", port, status):
+        proc = subprocess.Popen(cli("run", str(mission), "--yes", "--log", str(log),
+                                    "--plot", str(tmp_path / "int.png")),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=run_env())
+        try:
+            deadline = time.monotonic() + 120
+            while "CRUISE" not in _states(log_records(log)) if log.exists() else True:
+                assert proc.poll() is None, proc.communicate()
+                assert time.monotonic() < deadline, "never reached CRUISE"
+                time.sleep(0.2)
+            time.sleep(1.0)
+            airborne = read_status(status)
+            assert airborne["armed"] and -airborne["true_position_ned_m"][2] > 2.0, airborne
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        final = read_status(status)
+    assert proc.returncode == 130, out[-2000:] + err[-2000:]
+    assert "Traceback" not in err and "Task exception was never retrieved" not in err, err
+    assert f"SIGINT: safe stop ({action}) in progress" in out
+    recs = log_records(log)
+    end = [r for r in recs if r["kind"] == "end"]
+    assert end and end[-1]["reason"] == "interrupted by SIGINT" and end[-1]["action"] == action
+    assert (tmp_path / "int.png").exists()
+    if action == "land":
+        assert final["landed_state"] == ON_GROUND and not final["armed"], final
+    else:
+        assert final["mode"] == "HOLD" and final["armed"], final
+        assert -final["true_position_ned_m"][2] > 2.0, final
+
+
+def _calibration(path: Path, w: int, h: int, fx: float) -> Path:
+    path.write_text(yaml.safe_dump({
+        "image_width": w, "image_height": h, "camera_name": path.stem,
+        "camera_matrix": {"rows": 3, "cols": 3,
+                          "data": [fx, 0.0, (w - 1) / 2, 0.0, fx, (h - 1) / 2, 0.0, 0.0, 1.0]},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.0] * 5}}))
+    return path
+
+
+def test_field_path_on_the_gentl_test_producer_and_the_emulator(tmp_path: Path) -> None:
+    genicam = pytest.importorskip("genicam")
+    cti = os.path.join(os.path.dirname(genicam.__file__), "viky.cti")
+    if not os.path.isfile(cti):
+        pytest.skip("the genicam wheel ships no viky.cti")
+    port = free_udp_port()
+    data = yaml.safe_load((REPO / "configs" / "field_basler_px4.yaml").read_text())
+    data["vehicle"]["params"] = {"url": f"udpin://127.0.0.1:{port}", "connect_timeout_s": 20}
+    w, h = 800, 600
+    # the target is a red box; viky's test pattern is a 20 px green or blue square on white:
+    # no target in view, so the route is flown to its end
+    data["target"]["color_bgr"] = [30, 40, 210]
+    for cid, dev, fx in (("wide", "VikyTL_DEV_green", 747.0), ("narrow", "VikyTL_DEV_blue",
+                                                                 3200.0)):
+        cam = data["cameras"][cid]
+        cam["params"] = {"cti_files": [cti], "device_id": dev, "pixel_format": "RGBa8",
+                         "frame_rate_hz": 30}
+        cam["calibration_file"] = str(_calibration(tmp_path / f"{cid}.yaml", w, h, fx))
+    data["mission"]["route"] = [{"north_m": 0.0, "east_m": 0.0}, {"north_m": 12.0, "east_m": 0.0}]
+    mission = tmp_path / "field_test.yaml"
+    mission.write_text(yaml.safe_dump(data, sort_keys=False))
+    v = subprocess.run(cli("validate", str(mission)), capture_output=True, text=True, timeout=120)
+    assert v.returncode == 0, v.stderr
+    status = tmp_path / "emulator.json"
+    log = tmp_path / "field.jsonl"
+    with sitl_vehicle(mission, port, status):
+        p = subprocess.run(cli("run", str(mission), "--yes", "--log", str(log)),
+                           capture_output=True, text=True, timeout=400, env=run_env())
+        final = _wait_landed(status, 60.0)
+    assert "Traceback" not in p.stderr, p.stderr
+    assert "camera wide: genicam" in p.stdout and "camera narrow: genicam" in p.stdout
+    assert "800x600 px" in p.stdout and "synthetic" not in p.stdout
+    # the cameras are real GenTL devices; only the emulator (standing in for the autopilot)
+    # knows where it truly is, and says so
+    assert "ground truth: HIL_STATE_QUATERNION" in p.stdout
+    recs = log_records(log)
+    states = _states(recs)
+    assert states[:3] == ["TAKEOFF", "CRUISE", "FAILSAFE"], states
+    end = [r for r in recs if r["kind"] == "end"][-1]
+    assert end["reason"] == "route finished without a confirmed target", end
+    assert end["action"] == "return" and end["completed"]
+    assert {"start", "telemetry", "detection", "setpoint", "command", "end",
+            "evaluation"} <= {r["kind"] for r in recs}
+    # the route was flown: the reported position went to its end, then home
+    north = [r["position_ned_m"][0] for r in recs if r["kind"] == "telemetry"]
+    assert max(north) > 10.0 and abs(final["true_position_ned_m"][0]) < 2.0
+    assert p.returncode == 3, p.stdout[-2000:] + p.stderr[-2000:]
