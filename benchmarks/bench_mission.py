@@ -6,7 +6,7 @@ detections per frame on a target-free flight.
     python benchmarks/bench_mission.py [CONFIG] [--detector NAME] [--downscale K] [--skip-flight]
 
 The detection part flies a scripted kinematic path (no controller) and runs the mission's own
-detection selection (`runner.select_detection` + `plausible_size`) on the wide camera at the
+detection selection (`perception.select_detection` + `plausible_size`) on the wide camera at the
 mission's processing rate; the truth comes from the synthetic world's side channel.
 """
 
@@ -21,7 +21,7 @@ import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
 from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
 from eaglemission.missions.approach import ApproachConfig
-from eaglemission.missions.runner import plausible_size, select_detection
+from eaglemission.missions.perception import plausible_size, select_detection
 from eaglemission.missions.sim import run_simulation
 
 from eaglemission import registry

@@ -29,11 +29,11 @@ from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: 
 from eaglemission.drivers.cameras.world import SyntheticWorld  # noqa: E402
 from eaglemission.estimators.bearing import BearingConfig, BearingEstimator  # noqa: E402
 from eaglemission.estimators.correspondence import order_corners  # noqa: E402
-from eaglemission.estimators.fov import target_in_narrow_view  # noqa: E402
 from eaglemission.estimators.pixel_offset import PixelOffsetEstimator  # noqa: E402
 from eaglemission.estimators.rpnp import RPnPConfig, RPnPEstimator  # noqa: E402
 
 from eaglemission.config import load_config  # noqa: E402
+from eaglemission.fov import target_in_narrow_view  # noqa: E402
 from eaglemission.geometry import euler_to_quat  # noqa: E402
 from eaglemission.interfaces.estimator import CameraView  # noqa: E402
 from eaglemission.types import Detection, VehicleState  # noqa: E402

@@ -44,7 +44,14 @@ from eaglemission.errors import (
     EagleMissionError,
     PluginError,
 )
-from eaglemission.interfaces import FlightParts, GroundTruth, MissionHooks, MissionOutcome
+from eaglemission.interfaces import (
+    FlightParts,
+    GroundTruth,
+    MissionHooks,
+    MissionOutcome,
+    PlaneFitter,
+    Tracker,
+)
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.safety import SafeVehicle
 from eaglemission.types import XYZ, Quat
@@ -133,12 +140,14 @@ class Assembly:
     shared: SharedContext
     pose_source: PoseSource
     truth: GroundTruth | None = None
+    fitter: PlaneFitter | None = None
+    tracker: Tracker | None = None
 
     def parts(self, *, realtime: bool) -> FlightParts:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
                            cameras=self.cameras, detectors=self.detectors, coarse=self.coarse,
-                           fine=self.fine, shared=self.shared, truth=self.truth,
-                           realtime=realtime)
+                           fine=self.fine, shared=self.shared, fitter=self.fitter,
+                           tracker=self.tracker, truth=self.truth, realtime=realtime)
 
 
 def _appearance(cfg: MissionFile) -> Any:
@@ -195,7 +204,14 @@ def assemble(cfg: MissionFile, clock: Clock, *,
                            cfg.estimators.coarse.params, target=cfg.target)
     fine = registry.load("estimators", cfg.estimators.fine.type, cfg.estimators.fine.params,
                          target=cfg.target)
-    return Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose)
+    fs = cfg.estimators.fitter
+    fitter = None if fs is None else registry.load("fitters", fs.type, fs.params,
+                                                   target=cfg.target)
+    ts = cfg.tracker
+    tracker = None if ts is None else registry.load("trackers", ts.type, ts.params,
+                                                    target=cfg.target)
+    return Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
+                    fitter=fitter, tracker=tracker)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -113,8 +113,13 @@ class DetectorSection(PluginSection):
 
 
 class EstimatorsSection(StrictModel):
+    """The coarse (wide camera) and fine (narrow camera) estimators, and the plane fitter that
+    refines their detections on the plane of the target's top (``fitter: null``: none)."""
+
     coarse: PluginSection
     fine: PluginSection
+    fitter: PluginSection | None = Field(
+        default_factory=lambda: PluginSection(type="top_plane"))
 
 
 class TargetConfig(StrictModel):
@@ -268,6 +273,10 @@ class MissionFile(StrictModel):
     vehicle: PluginSection
     cameras: CamerasSection
     detector: DetectorSection
+    tracker: PluginSection | None = Field(
+        default_factory=lambda: PluginSection(type="colour_blob"))
+    """Finds the target by its appearance (colour) at close range and checks detections'
+    colour; ``null``: none."""
     estimators: EstimatorsSection
     target: TargetConfig
     tool_point_m: XYZm = (0.0, 0.0, 0.3)
@@ -447,7 +456,8 @@ def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
     detector = data.get("detector")
     if not isinstance(params, dict) or not isinstance(detector, dict):
         return data, warnings
-    moved = [k for k in ("detector_downscale", "narrow_threshold") if k in params]
+    moved = [k for k in ("detector_downscale", "narrow_threshold", "colour_tolerance")
+             if k in params]
     if not moved:
         return data, warnings
     data = copy.deepcopy(data)
@@ -473,6 +483,15 @@ def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
         warnings.append("mission.params.narrow_threshold: moved to "
                         "detector.per_camera.narrow.regions.threshold (read for this release; "
                         "write it there)")
+    if "colour_tolerance" in params:
+        value = params.pop("colour_tolerance")
+        tracker = data.setdefault("tracker", {"type": "colour_blob", "params": {}})
+        if isinstance(tracker, dict):
+            tp = tracker.setdefault("params", {})
+            if isinstance(tp, dict):
+                tp.setdefault("tolerance", value)
+        warnings.append("mission.params.colour_tolerance: moved to tracker.params.tolerance "
+                        "(read for this release; write it there)")
     return data, warnings
 
 
@@ -532,6 +551,10 @@ def plugin_sections(cfg: MissionFile) -> list[tuple[str, str, str, dict[str, Any
           for cid, over in cfg.detector.per_camera.items()],
         ("estimators", "estimators.coarse", cfg.estimators.coarse.type, cfg.estimators.coarse.params),
         ("estimators", "estimators.fine", cfg.estimators.fine.type, cfg.estimators.fine.params),
+        *([("fitters", "estimators.fitter", cfg.estimators.fitter.type,
+            cfg.estimators.fitter.params)] if cfg.estimators.fitter is not None else []),
+        *([("trackers", "tracker", cfg.tracker.type, cfg.tracker.params)]
+          if cfg.tracker is not None else []),
         ("missions", "mission", cfg.mission.type, cfg.mission.params),
     ]
 

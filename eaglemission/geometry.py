@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -350,17 +351,68 @@ def camera_pose_ned(
     return body_pose_ned(position_ned_m, attitude_q) @ mount
 
 
+def ray_plane_points(origin_ned_m: Sequence[float], directions_ned: Any, down_m: float, *,
+                     min_down: float = 1e-9) -> NDArray[np.float64]:
+    """Where rays from one origin meet the horizontal plane ``down = down_m`` (NED).
+
+    Parameters
+    ----------
+    origin_ned_m : (3,) the rays' common origin
+    directions_ned : (n, 3) ray directions (any length)
+    down_m : the plane's down coordinate
+    min_down : a ray must point down by more than this (its direction's down component):
+        a ray at or above the horizon never meets a plane below
+
+    Returns
+    -------
+    ndarray of shape (n, 3): the points, NaN rows where a ray does not reach the plane
+    (pointing too little down, or the plane is not below the origin).
+    """
+    o = np.asarray(origin_ned_m, dtype=np.float64)
+    d = np.asarray(directions_ned, dtype=np.float64).reshape(-1, 3)
+    out = np.full(d.shape, np.nan)
+    drop = float(down_m) - float(o[2])
+    ok = d[:, 2] > min_down
+    if drop <= 0 or not ok.any():
+        return out
+    out[ok] = o + d[ok] * (drop / d[ok, 2:3])
+    return out
+
+
 def intersect_ray_with_horizontal_plane(
     origin_ned_m: Sequence[float], direction_ned: Sequence[float], down_m: float
 ) -> Vec3 | None:
     """Point where a ray meets the horizontal plane ``d = down_m``; None if it never does
     (ray at or above the horizon w.r.t. that plane, or the plane is behind)."""
-    o = np.asarray(origin_ned_m, dtype=np.float64)
-    d = np.asarray(direction_ned, dtype=np.float64)
-    if d[2] <= 1e-9:
-        return None
-    s = (down_m - o[2]) / d[2]
-    if s <= 0:
-        return None
-    hit: Vec3 = o + s * d
-    return hit
+    hit = ray_plane_points(origin_ned_m, [direction_ned], down_m)[0]
+    return None if not np.isfinite(hit).all() else hit
+
+
+# Ties in u + v closer than this (pixels) are broken by v (float noise from boxPoints).
+_TIE_PX = 1e-6
+
+
+def order_corners(corners: Any) -> NDArray[np.float64]:
+    """Order 4 corners clockwise on screen starting from the top-left one
+    (docs/conventions.md).
+
+    Parameters
+    ----------
+    corners : array_like of shape (4, 2)
+        ``(u, v)`` pixel coordinates (u right, v down) of a convex quadrilateral, any order.
+
+    Returns
+    -------
+    ndarray of shape (4, 2), float64
+        Clockwise on screen, first the corner with the smallest ``u + v`` (ties, within 1e-6
+        px: the smaller ``v``).
+    """
+    c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
+    centre = c.mean(axis=0)
+    # On screen with v down, increasing atan2(v, u) turns clockwise.
+    ang = np.arctan2(c[:, 1] - centre[1], c[:, 0] - centre[0])
+    c = c[np.argsort(ang, kind="stable")]
+    s = c[:, 0] + c[:, 1]
+    candidates = np.flatnonzero(s <= s.min() + _TIE_PX)
+    start = int(candidates[np.argmin(c[candidates, 1])])
+    return np.roll(c, -start, axis=0)

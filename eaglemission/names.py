@@ -2,7 +2,8 @@
 
 ENTRY_POINT_PREFIX = "eaglemission."
 
-ROLES: tuple[str, ...] = ("cameras", "vehicles", "detectors", "estimators", "missions")
+ROLES: tuple[str, ...] = ("cameras", "vehicles", "detectors", "estimators", "fitters",
+                          "trackers", "missions")
 
 CAMERA_WIDE = "wide"
 CAMERA_NARROW = "narrow"

@@ -19,7 +19,15 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from eaglemission.errors import ConfigError, PluginError
-from eaglemission.interfaces import Camera, Detector, Estimator, Mission, Vehicle
+from eaglemission.interfaces import (
+    Camera,
+    Detector,
+    Estimator,
+    Mission,
+    PlaneFitter,
+    Tracker,
+    Vehicle,
+)
 from eaglemission.names import ENTRY_POINT_PREFIX, ROLES
 
 PROTOCOLS: dict[str, type] = {
@@ -27,6 +35,8 @@ PROTOCOLS: dict[str, type] = {
     "vehicles": Vehicle,
     "detectors": Detector,
     "estimators": Estimator,
+    "fitters": PlaneFitter,
+    "trackers": Tracker,
     "missions": Mission,
 }
 

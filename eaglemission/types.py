@@ -186,6 +186,21 @@ class TargetEstimate:
         return True
 
 
+@dataclass(frozen=True, slots=True)
+class PlaneFit:
+    """Where a detection's target is when its top face lies on a known horizontal plane
+    (:class:`~eaglemission.interfaces.fitter.PlaneFitter`): the top-face centre in NED, the
+    region model that explained the detection (``"top"`` face or whole ``"box"`` silhouette),
+    the target heading tried (deg, 0-180), the MBR side-length mismatch (sum of |log ratio|)
+    and the detection-to-model size ratio (> 1: the detection is larger)."""
+
+    position_ned_m: XYZ
+    region: str
+    yaw_deg: float
+    cost: float
+    size_ratio: float
+
+
 # ---------------------------------------------------------------------------------------------
 # Vehicle
 # ---------------------------------------------------------------------------------------------

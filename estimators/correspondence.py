@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from eaglemission.geometry import CameraModel, Pose, rot_z, wrap_deg
+from eaglemission.geometry import CameraModel, Pose, order_corners, rot_z, wrap_deg
 from eaglemission.types import (
     Detection,
     EstimationFailed,
@@ -70,18 +70,6 @@ def box_corners(length_m: float, width_m: float, height_m: float) -> NDArray[np.
     bottom = top.copy()
     bottom[:, 2] = height_m
     return np.vstack((top, bottom))
-
-
-def order_corners(corners: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Clockwise on screen from the top-left corner (smallest u + v, ties: smaller v); the same
-    rule as ``eaglemission.detectors.regions.order_corners``."""
-    c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    centre = c.mean(axis=0)
-    ang = np.arctan2(c[:, 1] - centre[1], c[:, 0] - centre[0])
-    c = c[np.argsort(ang)]
-    s = c[:, 0] + c[:, 1]
-    start = int(np.lexsort((c[:, 1], s))[0])
-    return np.roll(c, -start, axis=0)
 
 
 def project_box_mbr(

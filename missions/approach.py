@@ -24,13 +24,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from eaglemission.missions.filter import FilterConfig
+from eaglemission.missions.target_state import FilterConfig
 from pydantic import BaseModel, ConfigDict, Field
 from transitions import Machine
 
+from eaglemission.config import SafeAction
+
 log = logging.getLogger(__name__)
 
-SafeAction = Literal["hold", "return", "land"]
 FinalAction = Literal["hold", "return", "land", "release", "none"]
 
 
@@ -42,6 +43,10 @@ class MissionState(enum.Enum):
     CRUISE = "CRUISE"
     COARSE_APPROACH = "COARSE_APPROACH"
     FINE_APPROACH = "FINE_APPROACH"
+    """Fine approach, first part: hold the standoff while the narrow camera's fine estimates
+    come in (paper Sec. 3.2: the deep fovea measures)."""
+    FINE_DESCENT = "FINE_DESCENT"
+    """Fine approach, second part: descend from the standoff to the grasp pose."""
     GRASP_READY = "GRASP_READY"
     TARGET_LOST = "TARGET_LOST"
     DONE = "DONE"
@@ -51,13 +56,114 @@ class MissionState(enum.Enum):
 S = MissionState
 FINAL_STATES = frozenset({S.DONE, S.FAILSAFE})
 ACTIVE_STATES = tuple(s for s in S if s not in FINAL_STATES)
-AIRBORNE_STATES = frozenset({S.TAKEOFF, S.CRUISE, S.COARSE_APPROACH, S.FINE_APPROACH,
-                             S.GRASP_READY, S.TARGET_LOST})
-OFFBOARD_STATES = frozenset({S.CRUISE, S.COARSE_APPROACH, S.FINE_APPROACH, S.GRASP_READY,
-                             S.TARGET_LOST})
-TIMEOUT_FIELD = {S.PREFLIGHT: "preflight_s", S.TAKEOFF: "takeoff_s", S.CRUISE: "cruise_s",
-                 S.COARSE_APPROACH: "coarse_approach_s", S.FINE_APPROACH: "fine_approach_s",
-                 S.GRASP_READY: "grasp_ready_s", S.TARGET_LOST: "target_lost_s"}
+
+
+class Cameras(enum.Enum):
+    """Which cameras a state grabs (the paper's cruise uses only the wide camera)."""
+
+    NONE = "none"
+    BOTH = "both"
+    WIDE = "wide"
+    WIDE_WARMING_NARROW = "wide + narrow once the target nears its view"
+    FINE = "the fine-approach camera (narrow, or wide when the narrow cannot serve)"
+
+
+class Goal(enum.Enum):
+    """What the setpoints steer to in a state (:mod:`~eaglemission.missions.guidance`)."""
+
+    NONE = "none"
+    ROUTE = "the cruise route"
+    SEARCH = "a yaw sweep where the target was last seen"
+    APPROACH = "the standoff before the target, heading towards it"
+    STANDOFF = "the standoff, holding the heading the fine approach started with"
+    GRASP = "the grasp pose over the target"
+
+
+@dataclass(frozen=True, slots=True)
+class StatePolicy:
+    """What the runner does in one state: data, so that no code outside this table branches on
+    the mission state."""
+
+    cameras: Cameras = Cameras.NONE
+    estimator: Literal["coarse", "fine", None] = None
+    """The wide camera's frames go to the coarse estimator, the fine camera's to the fine."""
+    goal: Goal = Goal.NONE
+    offboard: bool = False
+    """Our setpoints fly the vehicle (a flight-mode change by anyone else is a pilot override)."""
+    airborne: bool = False
+    confirms: bool = False
+    """Wide-camera estimates count towards ``confirm_frames``."""
+    reacquires: bool = False
+    """Confirmation counts only estimates near where the target was lost."""
+    tracks: bool = False
+    """Estimates feed the target filter."""
+    filter_may_reset: bool = False
+    """A far-off estimate may restart the filter (coarse approach only)."""
+    predicts: bool = False
+    """Detections are gated around the filter's predicted pixel."""
+    close_range: bool = False
+    """Fine approach: cut views, colour tracking, strict plane fits."""
+    camera_choice: Literal["coarse", "fine", None] = None
+    tool_errors: bool = False
+    """The mission's own tool-point errors are computed (fine approach on)."""
+    grasp_check: bool = False
+    """Tool-point stability is counted towards ``grasp_stable_frames``."""
+    trim: bool = False
+    """The grasp pose's integral trim runs."""
+    rangefinder: bool = False
+    """Downward rangefinder readings measure the target's plane."""
+    camera_watch: bool = False
+    """A needed camera that stops delivering is a camera failure."""
+    timeout_field: str | None = None
+    """``mission.timeouts`` field bounding the state."""
+    timeout_from: MissionState | None = None
+    """The state's timer runs from this state's entry (the fine approach is one budget)."""
+    on_enter: tuple[str, ...] = ()
+    """Runner actions on entry, in order (see ``MissionRunner`` ``_enter_*``)."""
+
+
+POLICIES: dict[MissionState, StatePolicy] = {
+    S.PREFLIGHT: StatePolicy(cameras=Cameras.BOTH, timeout_field="preflight_s"),
+    S.TAKEOFF: StatePolicy(airborne=True, camera_watch=True, timeout_field="takeoff_s",
+                           on_enter=("arm_takeoff",)),
+    S.CRUISE: StatePolicy(cameras=Cameras.WIDE, estimator="coarse", goal=Goal.ROUTE,
+                          offboard=True, airborne=True, confirms=True, camera_watch=True,
+                          timeout_field="cruise_s",
+                          on_enter=("clear_confirmation", "start_offboard", "route_progress",
+                                    "report_rangefinder")),
+    S.COARSE_APPROACH: StatePolicy(
+        cameras=Cameras.WIDE_WARMING_NARROW, estimator="coarse", goal=Goal.APPROACH,
+        offboard=True, airborne=True, tracks=True, filter_may_reset=True, predicts=True,
+        camera_choice="coarse", rangefinder=True, camera_watch=True,
+        timeout_field="coarse_approach_s", on_enter=("seed_filter",)),
+    S.FINE_APPROACH: StatePolicy(
+        cameras=Cameras.FINE, estimator="fine", goal=Goal.STANDOFF, offboard=True,
+        airborne=True, tracks=True, predicts=True, close_range=True, camera_choice="fine",
+        tool_errors=True, rangefinder=True, camera_watch=True, timeout_field="fine_approach_s",
+        on_enter=("start_fine",)),
+    S.FINE_DESCENT: StatePolicy(
+        cameras=Cameras.FINE, estimator="fine", goal=Goal.GRASP, offboard=True, airborne=True,
+        tracks=True, predicts=True, close_range=True, camera_choice="fine", tool_errors=True,
+        grasp_check=True, trim=True, rangefinder=True, camera_watch=True,
+        timeout_field="fine_approach_s", timeout_from=S.FINE_APPROACH),
+    S.GRASP_READY: StatePolicy(
+        cameras=Cameras.FINE, estimator="fine", goal=Goal.GRASP, offboard=True, airborne=True,
+        tracks=True, predicts=True, close_range=True, camera_choice="fine", tool_errors=True,
+        grasp_check=True, trim=True, rangefinder=True, camera_watch=True,
+        timeout_field="grasp_ready_s", on_enter=("grasp",)),
+    S.TARGET_LOST: StatePolicy(cameras=Cameras.WIDE, estimator="coarse", goal=Goal.SEARCH,
+                               offboard=True, airborne=True, confirms=True, reacquires=True,
+                               predicts=True,
+                               camera_watch=True, timeout_field="target_lost_s",
+                               on_enter=("clear_confirmation", "hold_carrot")),
+    S.DONE: StatePolicy(on_enter=("final_done",)),
+    S.FAILSAFE: StatePolicy(on_enter=("final_failsafe",)),
+}
+"""The per-state policy table; with :data:`TRANSITIONS`, everything state-dependent."""
+
+AIRBORNE_STATES = frozenset(s for s, p in POLICIES.items() if p.airborne)
+OFFBOARD_STATES = frozenset(s for s, p in POLICIES.items() if p.offboard)
+TIMEOUT_FIELD = {s: p.timeout_field for s, p in POLICIES.items() if p.timeout_field}
 
 
 class ApproachConfig(BaseModel):
@@ -67,12 +173,6 @@ class ApproachConfig(BaseModel):
 
     process_rate_hz: float = Field(8.0, gt=0, le=200,
                                    description="frames processed per second per active camera")
-    detector_downscale: int = Field(2, ge=1, le=8,
-                                    description="detector works at 1/k resolution when it offers "
-                                                "`downscale`")
-    narrow_threshold: Literal["config", "otsu", "mean"] = Field(
-        "config", description="threshold of the narrow camera's detector: the paper's "
-        "'adaptive threshold segmentation' (otsu / mean) or the detector config's")
     narrow_warmup_frames: int = Field(4, ge=0, le=100,
                                       description="narrow-camera frames run through the detector "
                                                   "before its output is used")
@@ -111,7 +211,6 @@ class ApproachConfig(BaseModel):
         "and the target's size (paper: MBR filtered by the target's size and aspect)")
     colour_check: bool = Field(True, description="when target.color_bgr is set, a detection's "
                                "core must have the target's chromaticity (not in the paper)")
-    colour_tolerance: float = Field(0.25, gt=0, le=2, description="L1 chromaticity distance")
     yaw_rate_degps: float = Field(45.0, gt=0, description="yaw rate of the setpoints")
     search_radius_m: float = Field(2.0, ge=0, description="TARGET_LOST search circle radius")
     takeoff_tolerance_m: float = Field(0.3, gt=0)
@@ -212,6 +311,12 @@ class Snapshot:
     target_age_s: float = float("inf")
     target_expected_visible: bool = True
     target_lost_after_s: float = 2.5
+    # fine approach: standoff, then descent
+    at_standoff: bool = False
+    standoff_dwell_s: float = 0.0
+    standoff_max_wait_s: float = 3.0
+    fine_estimates: int = 0
+    fine_min_estimates: int = 5
     # grasp
     grasp_stable_frames: int = 0
     grasp_required_frames: int = 5
@@ -253,6 +358,13 @@ def narrow_ready(s: Snapshot) -> bool:
     """The target lies inside the narrow camera's view (in the wide image) and the narrow
     detector is warm."""
     return s.target_in_narrow_view and s.narrow_warm and s.has_target
+
+
+def ready_to_descend(s: Snapshot) -> bool:
+    """At the standoff, with enough fine estimates fused (or after waiting long enough: the
+    filter holds the coarse ones)."""
+    return s.at_standoff and (s.fine_estimates >= s.fine_min_estimates
+                              or s.standoff_dwell_s > s.standoff_max_wait_s)
 
 
 def grasp_stable(s: Snapshot) -> bool:
@@ -297,11 +409,14 @@ TRANSITIONS: list[dict[str, Any]] = [
      "conditions": [target_confirmed]},
     {"trigger": "in_narrow_view", "source": S.COARSE_APPROACH, "dest": S.FINE_APPROACH,
      "conditions": [narrow_ready]},
-    {"trigger": "tool_point_at_grasp", "source": S.FINE_APPROACH, "dest": S.GRASP_READY,
+    {"trigger": "at_standoff", "source": S.FINE_APPROACH, "dest": S.FINE_DESCENT,
+     "conditions": [ready_to_descend]},
+    {"trigger": "tool_point_at_grasp", "source": S.FINE_DESCENT, "dest": S.GRASP_READY,
      "conditions": [grasp_stable]},
     {"trigger": "grasp_complete", "source": S.GRASP_READY, "dest": S.DONE,
      "conditions": [grasp_finished]},
-    {"trigger": "lost", "source": [S.COARSE_APPROACH, S.FINE_APPROACH, S.GRASP_READY],
+    {"trigger": "lost", "source": [S.COARSE_APPROACH, S.FINE_APPROACH, S.FINE_DESCENT,
+                                   S.GRASP_READY],
      "dest": S.TARGET_LOST, "conditions": [target_lost]},
     {"trigger": "reacquired", "source": S.TARGET_LOST, "dest": S.COARSE_APPROACH,
      "conditions": [target_reacquired]},
@@ -366,9 +481,10 @@ def failsafe(state: MissionState, s: Snapshot, mission: Any, safety: Any,
 
 class ApproachMachine:
     """The model of the ``transitions`` machine. ``step(snapshot)`` fires at most one
-    transition; ``on_change`` is called with (old, new, reason) after every state change."""
+    transition; ``on_change`` is called with (old, new, reason, action) after every state
+    change (``action``: the safe action of an abort, else "")."""
 
-    def __init__(self, *, on_change: Callable[[MissionState, MissionState, str], None]
+    def __init__(self, *, on_change: Callable[[MissionState, MissionState, str, str], None]
                  | None = None) -> None:
         self.state: MissionState = S.PREFLIGHT
         self.reason = ""
@@ -381,9 +497,10 @@ class ApproachMachine:
 
     # transitions calls this with the trigger's arguments
     def _after_change(self, *args: Any, **kwargs: Any) -> None:
-        old = self._pending[0] if self._pending else self.state
+        old, trigger = self._pending if self._pending else (self.state, "")
         if self._on_change is not None:
-            self._on_change(old, self.state, self.reason)
+            self._on_change(old, self.state, self.reason,
+                            self.action if trigger == "abort" else "")
 
     def _fire(self, trigger: str, *args: Any) -> bool:
         self._pending = (self.state, trigger)
@@ -420,6 +537,14 @@ class ApproachMachine:
     @property
     def final(self) -> bool:
         return self.state in FINAL_STATES
+
+    @property
+    def policy(self) -> StatePolicy:
+        return POLICIES[self.state]
+
+    def outcome_action(self, on_done: str) -> str:
+        """The action that ends the flight: the failsafe's, else ``mission.on_done``."""
+        return self.action if self.state is S.FAILSAFE else on_done
 
 
 def mermaid_diagram() -> str:

@@ -1,16 +1,17 @@
-"""Pure guidance functions of the approach mission: route carrot, standoff, grasp pose, tool
-point. Frames and units: docs/conventions.md (local NED, body FRD, yaw from north to east).
+"""Guidance of the approach mission: pure functions (route carrot, standoff, grasp pose, tool
+point) and :class:`Guidance`, which owns the goal, the trim and the tilt compensation. Frames and units: docs/conventions.md (local NED, body FRD, yaw from north to east).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from eaglemission.geometry import quat_to_R, wrap_deg
-from eaglemission.types import XYZ, Setpoint
+from eaglemission.types import XYZ, Quat, Setpoint
 
 
 def step_towards(current: Sequence[float], goal: Sequence[float], max_step_m: float) -> XYZ:
@@ -121,3 +122,180 @@ def yaw_step_deg(current_deg: float, goal_deg: float, max_step_deg: float) -> fl
     """Turn from ``current_deg`` towards ``goal_deg`` by at most ``max_step_deg`` (wrapped)."""
     d = wrap_deg(goal_deg - current_deg)
     return wrap_deg(current_deg + max(-max_step_deg, min(max_step_deg, d)))
+
+
+# ---------------------------------------------------------------------------------------------
+# The approach's guidance: goals per state policy, carrot, trim, tilt compensation
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class GuidanceConfig:
+    """What guidance needs of the mission file (plain values)."""
+
+    route_ne_m: tuple[tuple[float, float], ...]
+    cruise_altitude_m: float
+    cruise_speed_mps: float
+    approach_speed_mps: float
+    standoff_horizontal_m: float
+    standoff_height_m: float
+    tool_point_m: XYZ
+    grasp_distance_m: float
+    final_speed_mps: float
+    yaw_rate_degps: float
+    fine_standoff_tolerance_m: float
+    tilt_compensation: bool
+    trim_gain_per_s: float
+    trim_max_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class GoalStep:
+    """One setpoint tick: the setpoint to send and whether the vehicle is at the standoff."""
+
+    setpoint: Setpoint
+    goal_ned_m: XYZ
+    at_standoff: bool
+
+
+class Guidance:
+    """Setpoints for the approach: a speed-limited carrot towards the state's goal (route,
+    search sweep, standoff, grasp pose), yaw rate limited, with the grasp pose's tilt
+    compensation and integral trim. Loop thread only."""
+
+    def __init__(self, cfg: GuidanceConfig) -> None:
+        self.c = cfg
+        self.route_len_m = route_length_m(cfg.route_ne_m)
+        self.route_s_m = 0.0
+        self.carrot: XYZ | None = None
+        self.carrot_yaw_deg = 0.0
+        self.approach_yaw_deg: float | None = None
+        self.trim: XYZ = (0.0, 0.0, 0.0)
+        self._tool_off: XYZ | None = None
+        self._search_t0_ns = 0
+        self._search_centre: XYZ | None = None
+
+    # -- state entries ---------------------------------------------------------------------
+    def start_at(self, position_ned_m: XYZ, yaw_deg: float) -> Setpoint:
+        """Offboard starts here (never a far-away setpoint PX4 would fly to at full speed)."""
+        self.carrot, self.carrot_yaw_deg = position_ned_m, yaw_deg
+        return setpoint_at(position_ned_m, yaw_deg)
+
+    def resume_route_from(self, north_m: float, east_m: float) -> None:
+        self.route_s_m = max(self.route_s_m, along_route_m(self.c.route_ne_m, north_m, east_m))
+
+    def new_approach(self) -> None:
+        self.approach_yaw_deg = None
+
+    def start_search(self, position_ned_m: XYZ, now_ns: int) -> None:
+        self.carrot = position_ned_m
+        self._search_centre = position_ned_m
+        self._search_t0_ns = now_ns
+
+    # -- queries -----------------------------------------------------------------------------
+    def route_finished(self, position_ned_m: XYZ) -> bool:
+        if self.route_s_m < self.route_len_m - 1e-6:
+            return False
+        return math.dist(position_ned_m[:2], self.c.route_ne_m[-1]) < 1.5
+
+    def standoff_ned_m(self, target_ned_m: XYZ) -> XYZ:
+        assert self.approach_yaw_deg is not None
+        return standoff_position(target_ned_m, self.approach_yaw_deg,
+                                 self.c.standoff_horizontal_m, self.c.standoff_height_m)
+
+    # -- goals -------------------------------------------------------------------------------
+    def goal(self, kind: str, position_ned_m: XYZ, yaw_deg: float, attitude_q: Quat,
+             target_ned_m: XYZ | None, now_ns: int, dt_s: float
+             ) -> tuple[XYZ, float, float] | None:
+        """(goal position, goal yaw, speed) for a goal kind (``Goal`` names of the state
+        policy), None when there is none (no target yet)."""
+        c = self.c
+        if kind == "ROUTE":
+            here_s = along_route_m(c.route_ne_m, *position_ned_m[:2])
+            self.route_s_m = min(self.route_len_m, self.route_s_m + c.cruise_speed_mps * dt_s,
+                                 here_s + 2.0 * c.cruise_speed_mps)
+            n, e, yaw = route_point(c.route_ne_m, self.route_s_m)
+            return (n, e, -c.cruise_altitude_m), yaw, c.cruise_speed_mps * 1.5
+        if kind == "SEARCH":
+            centre = self._search_centre or position_ned_m
+            base = self.approach_yaw_deg if self.approach_yaw_deg is not None else yaw_deg
+            sweep = 40.0 * math.sin(2 * math.pi * (now_ns - self._search_t0_ns) * 1e-9 / 8.0)
+            return centre, base + sweep, c.approach_speed_mps
+        if target_ned_m is None:
+            return None
+        if kind == "APPROACH":  # the heading follows the target
+            self.approach_yaw_deg = yaw_towards_deg(position_ned_m, target_ned_m)
+            return self.standoff_ned_m(target_ned_m), self.approach_yaw_deg, c.approach_speed_mps
+        if kind == "STANDOFF":  # the heading stays as the fine approach found it
+            if self.approach_yaw_deg is None:
+                self.approach_yaw_deg = yaw_towards_deg(position_ned_m, target_ned_m)
+            return self.standoff_ned_m(target_ned_m), self.approach_yaw_deg, c.approach_speed_mps
+        if kind == "GRASP":
+            if self.approach_yaw_deg is None:
+                self.approach_yaw_deg = yaw_towards_deg(position_ned_m, target_ned_m)
+            yaw = self.approach_yaw_deg
+            grasp = grasp_position(target_ned_m, yaw, c.tool_point_m, c.grasp_distance_m)
+            if c.tilt_compensation:
+                # the vehicle leans into the wind: put the TILTED tool point over the target
+                off = self._tool_offset(attitude_q, dt_s)
+                grasp = (target_ned_m[0] - off[0], target_ned_m[1] - off[1],
+                         target_ned_m[2] - c.grasp_distance_m - off[2])
+            return grasp, yaw, c.final_speed_mps
+        return None
+
+    def _tool_offset(self, attitude_q: Quat, dt_s: float) -> XYZ:
+        """The tool point's NED offset from the vehicle at its current attitude, low-passed
+        (time constant 1 s) so the attitude's jitter does not move the goal."""
+        off = tool_point_ned((0.0, 0.0, 0.0), attitude_q, self.c.tool_point_m)
+        if self._tool_off is None:
+            self._tool_off = off
+        else:
+            k = min(1.0, dt_s / 1.0)
+            a = self._tool_off
+            self._tool_off = (a[0] + k * (off[0] - a[0]), a[1] + k * (off[1] - a[1]),
+                              a[2] + k * (off[2] - a[2]))
+        return self._tool_off
+
+    def _update_trim(self, goal: XYZ, position: XYZ, dt_s: float, holding: bool) -> XYZ:
+        """Integral trim of the setpoint at the grasp pose: a multicopter's position loop
+        holds a steady offset in wind (2-3 cm measured at 2.6 m/s), more than the grasp
+        tolerance; the trim integrates the (estimated) position error once the carrot has
+        reached the grasp goal, clamped to ``trim_max_m``."""
+        if not holding or self.c.trim_gain_per_s <= 0:
+            return (0.0, 0.0, 0.0)
+        assert self.carrot is not None
+        if math.dist(self.carrot, goal) > 0.05:
+            return self.trim
+        k = self.c.trim_gain_per_s * dt_s
+        lim = self.c.trim_max_m
+        t = [float(np.clip(t + k * (g - p), -lim, lim))
+             for t, g, p in zip(self.trim, goal, position)]
+        return (t[0], t[1], t[2])
+
+    def step(self, kind: str, position_ned_m: XYZ, yaw_deg: float, attitude_q: Quat,
+             target_ned_m: XYZ | None, now_ns: int, dt_s: float, *, trim: bool) -> GoalStep:
+        """Advance the carrot by one tick towards the goal of ``kind``."""
+        goal = self.goal(kind, position_ned_m, yaw_deg, attitude_q, target_ned_m, now_ns, dt_s)
+        if goal is None:
+            goal = (self.carrot or position_ned_m, self.carrot_yaw_deg, 0.0)
+        pos, yaw, speed = goal
+        if self.carrot is None:
+            self.carrot = position_ned_m
+        if kind == "SEARCH":
+            self.carrot = pos
+        else:
+            self.carrot = step_towards(self.carrot, pos, speed * dt_s)
+            # never let the carrot run away from the vehicle (wind, clamping)
+            lead = math.dist(self.carrot, position_ned_m)
+            max_lead = max(2.0, 2.0 * speed)
+            if lead > max_lead:
+                self.carrot = step_towards(position_ned_m, self.carrot, max_lead)
+        self.carrot_yaw_deg = yaw_step_deg(self.carrot_yaw_deg, yaw,
+                                           self.c.yaw_rate_degps * dt_s)
+        self.trim = self._update_trim(pos, position_ned_m, dt_s, trim)
+        carrot = self.carrot
+        sp = setpoint_at((carrot[0] + self.trim[0], carrot[1] + self.trim[1],
+                          carrot[2] + self.trim[2]), self.carrot_yaw_deg)
+        at = False
+        if kind == "STANDOFF" and target_ned_m is not None and self.approach_yaw_deg is not None:
+            at = math.dist(position_ned_m, self.standoff_ned_m(target_ned_m)) \
+                < self.c.fine_standoff_tolerance_m
+        return GoalStep(sp, pos, at)

@@ -167,7 +167,8 @@ class ApproachMission:
         models = {c: cam.model for c, cam in p.cameras.items()}
         runner = MissionRunner(cfg, self.config, vehicle=p.vehicle, cameras=dict(p.cameras),
                                models=models, detectors=dict(p.detectors), coarse=p.coarse,
-                               fine=p.fine, clock=clock, mission_log=mlog,
+                               fine=p.fine, fitter=p.fitter, tracker=p.tracker,
+                               clock=clock, mission_log=mlog,
                                grasp_callback=h.grasp_callback, on_frame=h.on_frame,
                                on_telemetry=on_telemetry, record_all=h.record_all,
                                on_state=h.on_state)

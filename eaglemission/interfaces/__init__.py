@@ -3,9 +3,11 @@
 from eaglemission.interfaces.camera import Camera
 from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import CameraView, Estimator
+from eaglemission.interfaces.fitter import PlaneFitter
 from eaglemission.interfaces.mission import FlightParts, Mission, MissionHooks, MissionOutcome
+from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 
 __all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "GroundTruth",
-           "Mission", "MissionHooks", "MissionOutcome", "Vehicle"]
+           "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter", "Tracker", "Vehicle"]

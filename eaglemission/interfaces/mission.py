@@ -12,6 +12,8 @@ from eaglemission.context import SharedContext
 from eaglemission.interfaces.camera import Camera
 from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import Estimator
+from eaglemission.interfaces.fitter import PlaneFitter
+from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 
@@ -36,6 +38,8 @@ class FlightParts:
     coarse: Estimator
     fine: Estimator
     shared: SharedContext
+    fitter: PlaneFitter | None = None
+    tracker: Tracker | None = None
     truth: GroundTruth | None = None
     realtime: bool = False
 

@@ -48,7 +48,7 @@ def test_table_uses_enum_states_and_no_auto_transitions() -> None:
 
 def test_nominal_sequence_needs_every_guard() -> None:
     changes: list[tuple[str, str]] = []
-    m = ApproachMachine(on_change=lambda a, b, r: changes.append((a.value, b.value)))
+    m = ApproachMachine(on_change=lambda a, b, r, act: changes.append((a.value, b.value)))
     assert m.step(Snapshot()) is None and m.state is S.PREFLIGHT  # nothing ready yet
     assert m.step(READY) == "preflight_passed"
     assert m.step(Snapshot(in_air=True, altitude_m=2.0, takeoff_altitude_m=5.0)) is None
@@ -58,13 +58,67 @@ def test_nominal_sequence_needs_every_guard() -> None:
     near = Snapshot(has_target=True, target_age_s=0.1, target_in_narrow_view=True)
     assert m.step(near) is None  # narrow detector not warm yet
     assert m.step(dataclasses.replace(near, narrow_warm=True)) == "in_narrow_view"
-    fine = Snapshot(has_target=True, target_age_s=0.1, grasp_required_frames=5)
+    fine = Snapshot(has_target=True, target_age_s=0.1, grasp_required_frames=5,
+                    fine_min_estimates=5, standoff_max_wait_s=3.0)
+    # the standoff: there, but too few fine estimates and not waited long enough
+    assert m.step(dataclasses.replace(fine, at_standoff=True, fine_estimates=4)) is None
+    assert m.step(dataclasses.replace(fine, fine_estimates=9)) is None  # not there yet
+    assert m.step(dataclasses.replace(fine, at_standoff=True, fine_estimates=5)) == "at_standoff"
+    assert m.state is S.FINE_DESCENT
     assert m.step(dataclasses.replace(fine, grasp_stable_frames=4)) is None
     assert m.step(dataclasses.replace(fine, grasp_stable_frames=5)) == "tool_point_at_grasp"
     assert m.step(dataclasses.replace(fine, grasp_done=True)) == "grasp_complete"
     assert m.final and m.state is S.DONE
     assert [b for _, b in changes] == ["TAKEOFF", "CRUISE", "COARSE_APPROACH", "FINE_APPROACH",
-                                       "GRASP_READY", "DONE"]
+                                       "FINE_DESCENT", "GRASP_READY", "DONE"]
+
+
+def test_descent_also_starts_after_waiting_at_the_standoff() -> None:
+    m = machine_in(S.FINE_APPROACH)
+    s = Snapshot(has_target=True, target_age_s=0.1, at_standoff=True, fine_estimates=1,
+                 fine_min_estimates=5, standoff_max_wait_s=3.0, standoff_dwell_s=2.9)
+    assert m.step(s) is None
+    assert m.step(dataclasses.replace(s, standoff_dwell_s=3.1)) == "at_standoff"
+
+
+def test_the_fine_approach_is_one_time_budget() -> None:
+    """The descent's timeout runs from the fine approach's start (standoff + descent)."""
+    pol = ap.POLICIES
+    assert pol[S.FINE_DESCENT].timeout_from is S.FINE_APPROACH
+    assert pol[S.FINE_DESCENT].timeout_field == pol[S.FINE_APPROACH].timeout_field
+
+
+def test_every_state_has_a_policy_and_every_entry_action_exists() -> None:
+    from eaglemission.missions.runner import MissionRunner
+
+    assert set(ap.POLICIES) == set(MissionState)
+    for state, pol in ap.POLICIES.items():
+        for action in pol.on_enter:
+            assert hasattr(MissionRunner, f"_enter_{action}"), (state, action)
+    # the machine's own states are exactly the table's
+    states_in_table = set()
+    for t in TRANSITIONS:
+        src = t["source"] if isinstance(t["source"], list) else [t["source"]]
+        states_in_table |= set(src) | {t["dest"]}
+    assert states_in_table == set(MissionState)
+
+
+def test_no_mission_state_branches_outside_the_table() -> None:
+    """What a state does is data (POLICIES): the other mission modules never compare the
+    machine's state with a state."""
+    import re
+
+    root = Path(__file__).resolve().parents[2] / "missions"
+    pattern = re.compile(r"\b(?:S|MissionState)\.(?:" + "|".join(s.name for s in MissionState)
+                         + r")\b")
+    offenders = []
+    for path in sorted(root.glob("*.py")):
+        if path.name in ("approach.py",):
+            continue
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            if pattern.search(line):
+                offenders.append(f"{path.name}:{i}: {line.strip()}")
+    assert offenders == []
 
 
 def test_target_lost_and_reacquired() -> None:
@@ -144,7 +198,7 @@ def test_mermaid_doc_is_up_to_date() -> None:
 
 
 def test_px4_failsafe_parameters_are_reported() -> None:
-    from eaglemission.missions.runner import failsafe_param_warnings
+    from eaglemission.missions.actuator import failsafe_param_warnings
 
     cfg = load_config(check_plugins=False)
     w = failsafe_param_warnings({"RTL_RETURN_ALT": 60.0, "MPC_Z_VEL_MAX_UP": 3.0,

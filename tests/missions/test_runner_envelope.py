@@ -17,7 +17,9 @@ def make_runner(vehicle, sitl_config) -> MissionRunner:
     async def build() -> MissionRunner:
         clock = ManualClock()
         return MissionRunner(
-            sitl_config, ApproachConfig(), vehicle=vehicle, cameras={}, models={}, detectors={},
+            sitl_config, ApproachConfig(), vehicle=vehicle, cameras={},
+            models={c: sitl_config.cameras.wide.to_model(c) for c in ("wide", "narrow")},
+            detectors={},
             coarse=None, fine=None, clock=clock,
             mission_log=MissionLog(None, now_ns=clock.now_ns))
 

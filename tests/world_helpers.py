@@ -7,9 +7,8 @@ import math
 
 import cv2
 import numpy as np
-from eaglemission.estimators.correspondence import order_corners
 
-from eaglemission.geometry import euler_to_quat
+from eaglemission.geometry import euler_to_quat, order_corners
 from eaglemission.interfaces.estimator import CameraView
 from eaglemission.types import Detection, VehicleState
 

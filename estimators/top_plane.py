@@ -1,4 +1,5 @@
-"""Where a detection's box is, on the plane of the target's top (pure functions).
+"""Plugin ``top_plane`` (role ``fitters``): where a detection's box is, on the plane of the
+target's top.
 
 A saliency detector's MBR bounds either the target's top face alone (a bright top over shaded
 sides) or the whole box silhouette (top + the side faces the tilted camera sees), depending on
@@ -18,29 +19,17 @@ at the frame (the ground plane is at home's height, docs/conventions.md).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from eaglemission.geometry import CameraModel, Pose
-from eaglemission.kernels import lazy_kernel
+from eaglemission.geometry import CameraModel, Pose, ray_plane_points
+from eaglemission.interfaces.estimator import CameraView
+from eaglemission.types import Detection, PlaneFit
 
 REGIONS = ("top", "box")
-
-
-@dataclass(frozen=True, slots=True)
-class PlaneFit:
-    """Result of :func:`fit_on_top_plane`: the top-face centre in NED, the region model that
-    explained the detection, the heading tried, the MBR side-length mismatch (sum of |log
-    ratio|) and the detection-to-model size ratio (> 1: the detection is larger)."""
-
-    position_ned_m: tuple[float, float, float]
-    region: str
-    yaw_deg: float
-    cost: float
-    size_ratio: float
 
 
 def box_points_ned(top_ned_m: Any, yaw_deg: float, length_m: float, width_m: float,
@@ -76,10 +65,8 @@ def plane_hit(cam_ned: Pose, model: CameraModel, pixel: Any, plane_down_m: float
               ) -> np.ndarray | None:
     """Where the ray through ``pixel`` meets the plane ``down = plane_down_m`` (NED)."""
     ray = cam_ned.R @ model.rays_optical(np.asarray([pixel], dtype=np.float64))[0]
-    drop = plane_down_m - float(cam_ned.t[2])
-    if ray[2] <= 1e-3 or drop <= 0:
-        return None
-    return np.asarray(cam_ned.t + ray * (drop / float(ray[2])))
+    hit = ray_plane_points(cam_ned.t, ray[None, :], plane_down_m, min_down=1e-3)[0]
+    return hit if np.isfinite(hit).all() else None
 
 
 def _image_rect(width_px: int, height_px: int) -> np.ndarray:
@@ -120,15 +107,11 @@ def plane_hits(cam_ned: Pose, model: CameraModel, pixels: Any, plane_down_m: flo
                ) -> np.ndarray:
     """:func:`plane_hit` of (n, 2) pixels: (n, 3), NaN rows where the ray misses."""
     px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    out = np.full((len(px), 3), np.nan)
-    drop = plane_down_m - float(cam_ned.t[2])
-    if len(px) == 0 or drop <= 0:
-        return out
+    if len(px) == 0:
+        return np.full((0, 3), np.nan)
     # R @ ray per row (a stacked matrix-vector product: the same rounding as plane_hit's)
     rays = (cam_ned.R[None] @ model.rays_optical(px)[:, :, None])[:, :, 0]
-    ok = rays[:, 2] > 1e-3
-    out[ok] = cam_ned.t + rays[ok] * (drop / rays[ok, 2:3])
-    return out
+    return ray_plane_points(cam_ned.t, rays, plane_down_m, min_down=1e-3)
 
 
 def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: Any, corners_px: Any,
@@ -284,105 +267,29 @@ def fit_on_top_plane_reference(model: CameraModel, cam_ned: Pose, center_px: Any
     return best
 
 
-def colour_mask_numpy(image_bgr: np.ndarray, step: int, target_chroma: np.ndarray,
-                      tolerance: float, min_brightness: float) -> np.ndarray:
-    """uint8 mask of ``image_bgr[::step, ::step]``: chromaticity within ``tolerance`` (L1) of
-    ``target_chroma`` (float32, sums to 1) and B + G + R >= ``min_brightness`` (the
-    reference of the compiled ``_colour_kernel.colour_mask``)."""
-    small = np.ascontiguousarray(image_bgr[::step, ::step])
-    t = np.asarray(target_chroma, dtype=np.float32)
-    # Per-channel float32 planes: the same arithmetic as an (H, W, 3) chromaticity, ~5x faster.
-    b, g, r = (p.astype(np.float32) for p in cv2.split(small))
-    total = (b + g) + r
-    den = np.maximum(total, np.float32(1.0))
-    dist = np.abs(b / den - t[0])
-    dist += np.abs(g / den - t[1])
-    dist += np.abs(r / den - t[2])
-    return ((dist <= tolerance) & (total >= min_brightness)).astype(np.uint8)
+class TopPlaneFitter:
+    """Plugin ``top_plane`` (role ``fitters``): :func:`fit_on_top_plane` behind the
+    :class:`~eaglemission.interfaces.fitter.PlaneFitter` Protocol (not in the paper:
+    docs/estimators.md, "top-plane fit")."""
 
+    description = ("top face or box silhouette of the target fitted on the plane of its top "
+                   "(MBR centre, side lengths and direction over a grid of headings)")
 
-# the compiled colour mask (loaded on first use; None: colour_mask_numpy)
-_colour_kernel = lazy_kernel("eaglemission.missions._colour_kernel", "colour_mask")
+    class Config(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
+        yaw_step_deg: float = Field(15.0, gt=0, le=90, description="heading grid step")
 
-def _components(mask: np.ndarray) -> tuple[int, np.ndarray, tuple[int, int], np.ndarray,
-                                          np.ndarray]:
-    """``cv2.connectedComponentsWithStats(mask, connectivity=8)`` computed on the bounding box
-    of the mask's pixels (~1/8 of the frame near the target: several times faster).
+    def __init__(self, config: Config | None = None, *, target: Any, **_context: Any) -> None:
+        self.config = config or self.Config()
+        self.target = target
 
-    Returns (n, labels of the box, the box's (left, top), stats, centroids), stats and
-    centroids in full-image coordinates; the centroids are rebuilt from OpenCV's integer
-    coordinate sums and divided as OpenCV divides them (the same doubles as a full-frame call).
-    """
-    x0, y0, w, h = cv2.boundingRect(mask)
-    if w == 0 or h == 0:
-        return 1, np.zeros((0, 0), np.int32), (0, 0), np.zeros((1, 5), np.int32), np.zeros((1, 2))
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask[y0:y0 + h, x0:x0 + w],
-                                                               connectivity=8)
-    area = stats[:, cv2.CC_STAT_AREA].astype(np.float64)[:, None]
-    sums = np.rint(cents * area) + np.array([x0, y0]) * area  # exact integers (< 2**53)
-    cents = sums / np.maximum(area, 1.0)
-    stats = stats.copy()
-    stats[:, cv2.CC_STAT_LEFT] += x0
-    stats[:, cv2.CC_STAT_TOP] += y0
-    return n, labels, (x0, y0), stats, cents
-
-
-def colour_blob(image_bgr: np.ndarray, target_bgr: Any, tolerance: float, near_px: Any, *,
-                min_area_px: float = 200.0, step: int = 2, min_brightness: float = 60.0,
-                camera_id: str = "", backend: str = "numba") -> Any:
-    """Close-range fallback detection (not in the paper): the connected region of the target's
-    chromaticity nearest ``near_px``, as a :class:`~eaglemission.types.Detection` (its MBR).
-
-    At a metre the target fills a tenth of the wide image and a rarity-based saliency map
-    (DTDMI's ``field`` preset) stops singling it out; its colour still does. The top and the
-    shaded side faces share the chromaticity, so the region is the box silhouette (cut by the
-    image border near the grasp pose). Works on every ``step``-th pixel; None when no region of
-    at least ``min_area_px`` (full-resolution pixels) is found. ``backend="numpy"`` computes
-    the colour mask without numba (same mask)."""
-    from eaglemission.detectors.regions import order_corners
-
-    from eaglemission.types import Detection
-
-    img = np.asarray(image_bgr)
-    if img.ndim != 3:
-        return None
-    t = np.asarray(target_bgr, dtype=np.float32)
-    t = t / max(1.0, float(t.sum()))
-    # Python floats: numpy compares them with float32 arrays in float32, as the kernel does
-    tolerance, min_brightness = float(tolerance), float(min_brightness)
-    kern = _colour_kernel() if backend == "numba" and img.dtype == np.uint8 else None
-    if kern is not None:
-        mask = kern(np.ascontiguousarray(img), int(step), t, np.float32(tolerance),
-                    np.float32(min_brightness))
-    else:
-        mask = colour_mask_numpy(img, step, t, tolerance, min_brightness)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, labels, (bx, by), stats, cents = _components(mask)
-    if n <= 1:
-        return None
-    near = np.asarray(near_px, dtype=np.float64) / step
-    best, best_d = -1, math.inf
-    for i in range(1, n):
-        if stats[i, cv2.CC_STAT_AREA] * step * step < min_area_px:
-            continue
-        d = float(np.hypot(*(cents[i] - near)))
-        if d < best_d:
-            best, best_d = i, d
-    if best < 0:
-        return None
-    # The region's MBR is that of its convex hull, whose vertices lie on its outer boundary:
-    # the boundary pixels give the same rectangle as all pixels, far faster.
-    x0, y0, w0, h0 = (int(v) for v in stats[best, :4])
-    region = (labels[y0 - by:y0 - by + h0, x0 - bx:x0 - bx + w0] == best).astype(np.uint8)
-    contours, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE,
-                                   offset=(x0, y0))
-    edge = np.concatenate([c.reshape(-1, 2) for c in contours])
-    pts = (edge.astype(np.float32) + 0.5) * step - 0.5
-    (cx, cy), (w, h), ang = cv2.minAreaRect(pts)
-    corners = order_corners(cv2.boxPoints(((cx, cy), (w, h), ang)).astype(np.float64))
-    long_, short = (w, h) if w >= h else (h, w)
-    return Detection(score=1.0, center_px=(float(cx), float(cy)), corners_px=corners,
-                     size_px=(float(long_), float(short)), angle_deg=float(ang),
-                     area_px=float(stats[best, cv2.CC_STAT_AREA] * step * step),
-                     camera_id=camera_id)
+    def fit(self, detection: Detection, view: CameraView, *, plane_down_m: float,
+            yaw_hint_deg: float | None = None, region_hint: str | None = None,
+            iterations: int = 4) -> PlaneFit | None:
+        if region_hint is not None and region_hint not in REGIONS:
+            raise ValueError(f"region_hint: must be one of {REGIONS}, got {region_hint!r}")
+        return fit_on_top_plane(view.model, view.camera_pose_ned, detection.center_px,
+                                detection.corners_px, self.target, ground_down_m=plane_down_m,
+                                yaw_step_deg=self.config.yaw_step_deg, iterations=iterations,
+                                yaw_hint_deg=yaw_hint_deg, region_hint=region_hint)

@@ -7,7 +7,10 @@ import math
 
 import numpy as np
 import pytest
-from eaglemission.estimators.fov import (
+from world_helpers import detection_from_polygon
+
+from eaglemission.config import SimulationConfig
+from eaglemission.fov import (
     map_points,
     narrow_fov_in_wide,
     pixel_homography,
@@ -16,10 +19,20 @@ from eaglemission.estimators.fov import (
     relative_pose,
     target_in_narrow_view,
 )
-from world_helpers import detection_from_polygon
-
-from eaglemission.config import SimulationConfig
 from eaglemission.geometry import camera_pose_ned, euler_to_quat
+
+
+@pytest.fixture(scope="module")
+def mission():
+    from eaglemission.config import load_config
+
+    return load_config(check_plugins=False)
+
+
+@pytest.fixture(scope="module")
+def world(mission):
+    world_mod = pytest.importorskip("eaglemission.drivers.cameras.world")
+    return world_mod.SyntheticWorld(mission.simulation, mission.target, seed=1, extent_m=80.0)
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,10 @@
-"""A filter on the target's position in local NED: a static target with process noise.
+"""The target state of the approach mission: filters over time and pure functions.
+
+:class:`TargetFilter` (the target's position), :class:`PlaneOffsetFilter` (the plane of its
+top, measured by the rangefinder), the vertical reference, the plane-fit and size-range
+error models, the wide camera's confirmation and the grasp-stability count.
+
+The position filter: a static target with process noise.
 
 The target is assumed static in the world; its position *in the autopilot's local NED frame*
 still wanders slowly because the vehicle's own position estimate drifts, and because coarse
@@ -12,11 +18,13 @@ re-acquired somewhere else, e.g. after a large estimate drift).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from eaglemission.geometry import ray_plane_points
 from eaglemission.types import XYZ
 
 
@@ -194,3 +202,100 @@ class PlaneOffsetFilter:
         self._var = (1.0 - k) * var
         self.updates += 1
         return True
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure functions of the target state (the runner calls them on the loop thread; the perception
+# worker gets the immutable PlaneState)
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class PlaneState:
+    """The target plane's offset estimate at one instant (handed to perception by value)."""
+
+    offset_m: float
+    std_m: float
+
+
+def plane_down_m(target_height_m: float, plane: PlaneState, use_offset: bool) -> float:
+    """Down coordinate of the plane of the target's top face: flat ground at home's height
+    (``-height_m``), shifted by the measured offset when it is used."""
+    return -float(target_height_m) + (plane.offset_m if use_offset else 0.0)
+
+
+def vertical_reference(p: Sequence[float], camera_ned_m: Sequence[float] | None,
+                       plane_m: float, mode: str, *, full_3d: bool = False,
+                       full_3d_range_m: float = 1.6) -> XYZ:
+    """Apply ``vertical_reference`` to an estimated target position ``p``.
+
+    ``estimate``: ``p`` as the estimator gave it. ``ground``: keep the direction of ``p`` from
+    the camera (precise) and take its range from the plane ``down = plane_m`` (the weak part of
+    a 4-point PnP at a few metres). ``hybrid``: ``ground`` beyond ``full_3d_range_m``, the full
+    3-D estimate closer in (when it is one: ``full_3d``). Without a camera position, ``p`` is
+    moved vertically onto the plane.
+    """
+    if mode == "estimate":
+        return (float(p[0]), float(p[1]), float(p[2]))
+    if camera_ned_m is not None:
+        c = np.asarray(camera_ned_m, dtype=np.float64)
+        d = np.asarray(p, dtype=np.float64) - c
+        if mode == "hybrid" and full_3d and float(np.linalg.norm(d)) <= full_3d_range_m:
+            return (float(p[0]), float(p[1]), float(p[2]))
+        hit = ray_plane_points(c, d[None, :], plane_m, min_down=1e-3)[0]
+        if np.isfinite(hit).all():
+            return (float(hit[0]), float(hit[1]), plane_m)
+    return (float(p[0]), float(p[1]), plane_m)
+
+
+def fit_std_m(range_m: float, sin_depression: float, angular_std_deg: float) -> float:
+    """1-sigma of a plane-fit position: the angular error spread along the line of sight."""
+    return range_m * math.radians(angular_std_deg) / max(sin_depression, 1e-3)
+
+
+def size_range_scale(size_ratio: float, plane_std_m: float, sin_depression: float,
+                     range_m: float, size_std_fraction: float) -> float:
+    """Factor on the camera-to-target vector that fuses the plane's range with the range from
+    the target's apparent size (1 / ``size_ratio``, a known target), weighted by their errors."""
+    s_plane = plane_std_m / max(sin_depression, 1e-3)
+    s_size = size_std_fraction * range_m
+    w = s_plane**2 / (s_plane**2 + s_size**2)
+    return 1.0 + w * (1.0 / size_ratio - 1.0)
+
+
+def confirmation(history: Sequence[XYZ], p: XYZ | None, *, radius_m: float,
+                 accept: bool = True) -> list[XYZ]:
+    """The run of consecutive wide-camera positions that agree within ``radius_m``: a miss
+    (``p`` None) or a jump clears it; ``accept`` False (too far from where the target was
+    lost) leaves it unchanged."""
+    if p is None:
+        return []
+    out = list(history)
+    if out and math.dist(p, out[-1]) > radius_m:
+        out = []
+    if accept:
+        out.append(p)
+    return out
+
+
+def grasp_progress(window: Sequence[tuple[float, float]], h_err_m: float, dist_m: float, *,
+                   slow: bool, grasp_distance_m: float, tolerance_m: float, hold_factor: float,
+                   accept_fraction: float, required: int) -> tuple[list[tuple[float, float]], int]:
+    """One frame of the grasp-stability count: (new window, frames counted).
+
+    Frames count while the tool point stays within ``hold_factor`` x the tolerance (a hover in
+    wind jitters by a few cm) and the vehicle is slow; the count reaches ``required`` only
+    when the latest error is within the tolerance and the running mean of the last
+    ``required`` frames within ``accept_fraction`` x the tolerance (the margin for the
+    estimate's own error). Anything else resets the window.
+    """
+    near = (slow and h_err_m <= hold_factor * tolerance_m
+            and abs(dist_m - grasp_distance_m) <= hold_factor * tolerance_m)
+    if not near:
+        return [], 0
+    win = [*window, (h_err_m, dist_m)][-64:]
+    recent = win[-required:]
+    h_mean = float(np.mean([h for h, _ in recent]))
+    d_mean = float(np.mean([d for _, d in recent]))
+    accept = accept_fraction * tolerance_m
+    inside = (h_mean <= accept and abs(d_mean - grasp_distance_m) <= accept
+              and h_err_m <= tolerance_m and abs(dist_m - grasp_distance_m) <= tolerance_m)
+    return win, len(win) if inside else min(len(win), required - 1)

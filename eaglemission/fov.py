@@ -78,8 +78,9 @@ def plane_homography_normalized(
 
 def pixel_homography(wide: CameraModel, narrow: CameraModel, H_norm: NDArray[np.float64]) -> NDArray[np.float64]:
     """Narrow pixels -> wide pixels for pinhole (undistorted) images: ``K_w H_norm K_n^-1``."""
-    H = wide.K @ H_norm @ np.linalg.inv(narrow.K)
-    return H / H[2, 2]
+    H = np.asarray(wide.K @ H_norm @ np.linalg.inv(narrow.K), dtype=np.float64)
+    out: NDArray[np.float64] = H / H[2, 2]
+    return out
 
 
 def map_points(H_norm: NDArray[np.float64], src: CameraModel, dst: CameraModel,
@@ -162,7 +163,7 @@ def target_in_narrow_view(
         if H_norm is None:
             H_norm = plane_homography_normalized(wide_model, narrow_model, height_above_ground_m,
                                                  attitude_q)
-        H_inv = np.linalg.inv(H_norm)
+        H_inv: NDArray[np.float64] = np.linalg.inv(H_norm).astype(np.float64)
     except (ValueError, np.linalg.LinAlgError) as exc:
         log.debug("target_in_narrow_view: %s", exc)
         return False
@@ -186,7 +187,8 @@ class HomographyRefinement:
 
 
 def _gray(img: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+    out = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+    return np.asarray(out, dtype=np.uint8)
 
 
 def refine_homography(
@@ -225,10 +227,10 @@ def refine_homography(
     valid = cv2.erode(valid, np.ones((5, 5), np.uint8))
     roi = np.ascontiguousarray(wg[y0:y1, x0:x1])
     if method == "sift":
-        det = cv2.SIFT_create(nfeatures=max_features)
+        det = cv2.SIFT_create(nfeatures=max_features)  # type: ignore[attr-defined]  # cv2's stubs omit the feature factories
         norm = cv2.NORM_L2
     else:
-        det = cv2.ORB_create(nfeatures=max_features)
+        det = cv2.ORB_create(nfeatures=max_features)  # type: ignore[attr-defined]  # cv2's stubs omit the feature factories
         norm = cv2.NORM_HAMMING
     kp_w, des_w = det.detectAndCompute(warped, valid)
     kp_r, des_r = det.detectAndCompute(roi, None)
@@ -239,8 +241,8 @@ def refine_homography(
     good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.75 * p[1].distance]
     if len(good) < min_inliers:
         return HomographyRefinement(Hc, False, len(good), 0.0, "too few distinctive matches")
-    src = np.float32([kp_w[m.queryIdx].pt for m in good]).reshape(-1, 1, 2)
-    dst = np.float32([kp_r[m.trainIdx].pt for m in good]).reshape(-1, 1, 2)
+    src = np.asarray([kp_w[m.queryIdx].pt for m in good], dtype=np.float32).reshape(-1, 1, 2)
+    dst = np.asarray([kp_r[m.trainIdx].pt for m in good], dtype=np.float32).reshape(-1, 1, 2)
     Hr, mask = cv2.findHomography(src, dst, cv2.RANSAC, ransac_px)
     inliers = int(mask.sum()) if mask is not None else 0
     if Hr is None or inliers < min_inliers:

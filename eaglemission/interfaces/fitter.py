@@ -1,0 +1,24 @@
+"""Plane-fitter role (entry-point group ``eaglemission.fitters``)."""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+from eaglemission.interfaces.estimator import CameraView
+from eaglemission.types import Detection, PlaneFit
+
+
+@runtime_checkable
+class PlaneFitter(Protocol):
+    """Refines a detection into a target position on the plane of the target's top face.
+
+    Construction: ``cls(config=<cls.Config instance>, target=TargetConfig, **context)``.
+    ``fit`` is synchronous and I/O-free. ``plane_down_m`` is the down coordinate (NED, the
+    vehicle's estimated frame) of the ground the target stands on; ``yaw_hint_deg`` and
+    ``region_hint`` (from an earlier complete view) restrict the hypotheses of a view cut by
+    the image border. Returns None when no hypothesis projects (misuse raises ``ValueError``).
+    """
+
+    def fit(self, detection: Detection, view: CameraView, *, plane_down_m: float,
+            yaw_hint_deg: float | None = None, region_hint: str | None = None,
+            iterations: int = 4) -> PlaneFit | None: ...

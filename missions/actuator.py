@@ -1,0 +1,245 @@
+"""The mission's actuator: every vehicle command, each bounded, never inside a machine callback
+(transitions #465/#474/#713: long work must not run in callbacks).
+
+Commands come through a queue (``arm_takeoff``, ``start_offboard``, ``grasp``, ``final``);
+results go back as plain attributes the runner reads on the loop thread (``command_failed``,
+``offboard``, ``grasp_done``, ``finished``). Before the first command it aligns the autopilot's
+return height with the envelope and reads back its failsafe parameters.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import logging
+import math
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.guidance import Guidance
+from eaglemission.missions.log import MissionLog
+
+from eaglemission import errors
+from eaglemission.clock import Clock
+from eaglemission.config import MissionFile, SafetyConfig
+from eaglemission.interfaces import Vehicle
+from eaglemission.names import PX4_FAILSAFE_PARAMS
+
+log = logging.getLogger(__name__)
+
+COM_OBL_RC_ACT_NAMES = {0: "Position mode", 1: "Altitude mode", 2: "Manual", 3: "Return",
+                        4: "Land", 5: "Hold", 6: "Terminate", 7: "Disarm"}
+
+
+def failsafe_param_warnings(values: dict[str, float], safety: SafetyConfig) -> list[str]:
+    """What a field team must know about PX4's own failsafes with this envelope (pure).
+
+    PX4 flies RTL/land/takeoff at its own speeds and RTL climbs to RTL_RETURN_ALT: values
+    outside the mission's envelope are reported, as is the offboard-loss action (in the recorded
+    PX4 traffic, offboard loss switched to Position mode and, without RC, the vehicle descended
+    and landed)."""
+    out: list[str] = []
+    rtl = values.get("RTL_RETURN_ALT")
+    if rtl is not None and rtl > safety.max_altitude_m:
+        out.append(f"RTL_RETURN_ALT={rtl:g} m is above safety.max_altitude_m="
+                   f"{safety.max_altitude_m:g}: a PX4 return would leave the altitude band; "
+                   "set RTL_RETURN_ALT inside it")
+    for name, limit in (("MPC_XY_CRUISE", safety.max_horizontal_speed_mps),
+                        ("MPC_XY_VEL_MAX", safety.max_horizontal_speed_mps),
+                        ("MPC_Z_VEL_MAX_UP", safety.max_vertical_speed_mps),
+                        ("MPC_Z_VEL_MAX_DN", safety.max_vertical_speed_mps)):
+        v = values.get(name)
+        if v is not None and v > limit + 1e-6:
+            out.append(f"{name}={v:g} m/s exceeds the envelope's {limit:g} m/s: autopilot-flown "
+                       "moves (RTL, land, takeoff) would be faster than the envelope allows")
+    act = values.get("COM_OBL_RC_ACT")
+    if act is not None:
+        out.append(f"offboard loss (COM_OF_LOSS_T={values.get('COM_OF_LOSS_T', float('nan')):g} "
+                   f"s) -> COM_OBL_RC_ACT={int(act)} "
+                   f"({COM_OBL_RC_ACT_NAMES.get(int(act), 'unknown')})"
+                   + ("; without RC PX4 then descends and lands" if int(act) in (0, 1) else ""))
+    return out
+
+
+def return_altitude_m(cruise_altitude_m: float, safety: SafetyConfig) -> float:
+    """The return height inside the envelope: the cruise altitude, clamped into the band."""
+    return max(safety.min_altitude_m + 1.0, min(cruise_altitude_m, safety.max_altitude_m - 1.0))
+
+
+class Actuator:
+    """Executes the mission's vehicle commands in order (one task)."""
+
+    def __init__(self, cfg: MissionFile, params: ApproachConfig, vehicle: Vehicle, clock: Clock,
+                 mission_log: MissionLog, guidance: Guidance,
+                 grasp_callback: Callable[[], Awaitable[Any]] | None = None) -> None:
+        self.cfg, self.p, self.m = cfg, params, cfg.mission
+        self.vehicle, self.clock, self.log = vehicle, clock, mission_log
+        self.guidance = guidance
+        self.grasp_callback = grasp_callback
+        self.queue: asyncio.Queue[tuple[str, Any]] = asyncio.Queue()
+        self.stopping = False
+        self.finished = asyncio.Event()
+        self.command_failed = ""
+        self.offboard = False
+        self.offboard_since_ns = 0
+        self.grasp_done = False
+        self.final_sent = False
+        self.settle_s = params.settle_timeout_s
+        self.failsafe_params: dict[str, float] | None = None
+        self.failsafe_warnings: list[str] = []
+        self._rtl_restore: float | None = None
+        self.on_grasp_done: Callable[[], None] | None = None
+
+    def submit(self, name: str, arg: Any = None) -> None:
+        self.queue.put_nowait((name, arg))
+
+    def _inner(self) -> Any:
+        return getattr(self.vehicle, "inner", self.vehicle)
+
+    async def command(self, name: str, coro_fn: Callable[[], Awaitable[Any]]) -> bool:
+        timeout = self.m.timeouts.command_s
+        try:
+            await asyncio.wait_for(coro_fn(), timeout=timeout)
+        except (errors.VehicleError, TimeoutError) as exc:
+            self.log.write("command", name=name, ok=False, error=str(exc))
+            return False
+        self.log.write("command", name=name, ok=True)
+        return True
+
+    async def run(self) -> None:
+        v = self.vehicle
+        await self.align_autopilot()
+        await self.read_failsafe_params()
+        while not self.stopping:
+            try:
+                name, arg = await asyncio.wait_for(self.queue.get(), timeout=0.5)
+            except TimeoutError:
+                continue
+            if name == "arm_takeoff":
+                ok = await self.command("arm", v.arm) and await self.command(
+                    "takeoff", lambda: v.takeoff(self.m.cruise_altitude_m))
+                if not ok:
+                    self.command_failed = "arm/takeoff refused"
+            elif name == "start_offboard":
+                vs = v.state()
+                sp = self.guidance.start_at(vs.position_ned_m, vs.yaw_deg)
+                if await self.command("start_offboard", functools.partial(v.start_offboard, sp)):
+                    self.offboard = True
+                    self.offboard_since_ns = self.clock.now_ns()
+                else:
+                    self.command_failed = "offboard refused"
+            elif name == "grasp":
+                await self.grasp()
+            elif name == "final":
+                try:
+                    await self.final(arg)
+                    if not v.state().in_air:
+                        await self.restore_autopilot()
+                finally:
+                    self.finished.set()
+                return
+
+    async def grasp(self) -> None:
+        action = self.m.grasp_action
+        if action == "gripper":
+            await self.command("grab", self.vehicle.grab)
+        elif action == "callback" and self.grasp_callback is not None:
+            try:
+                await asyncio.wait_for(self.grasp_callback(), timeout=self.m.timeouts.grasp_ready_s)
+                self.log.write("command", name="grasp_callback", ok=True)
+            except Exception as exc:  # a user callback must not crash the mission
+                self.log.write("command", name="grasp_callback", ok=False, error=repr(exc))
+        # hold the grasp pose on the live estimate for the stable period before leaving
+        await self.clock.sleep(max(0.0, self.m.grasp_stable_frames / self.p.process_rate_hz))
+        self.grasp_done = True
+        if self.on_grasp_done is not None:
+            self.on_grasp_done()
+
+    async def final(self, action: str) -> None:
+        v = self.vehicle
+        self.log.write("event", source="mission", text=f"final action: {action}")
+        if action in ("hold", "land", "return"):
+            was_offboard, self.offboard = self.offboard, False
+            if was_offboard:  # leave offboard explicitly (MAVSDK: offboard.stop()) first
+                await self.command("stop_offboard", v.stop_offboard)
+            fn = {"hold": v.hold, "land": v.land, "return": v.return_to_launch}[action]
+            deadline = self.clock.now_ns() + int(self.settle_s * 1e9)
+            while not await self.command(action, fn):
+                if self.clock.now_ns() > deadline:
+                    break
+                await self.clock.sleep(1.0)  # e.g. the link is down: retry
+        elif action == "release":
+            self.offboard = False  # stop commanding: the pilot has the vehicle
+        self.final_sent = True
+        # let the flight finish (landing / return) so the whole flight is recorded
+        if action in ("land", "return"):
+            deadline = self.clock.now_ns() + int(self.settle_s * 1e9)
+            while self.clock.now_ns() < deadline:
+                vs = v.state()
+                if not vs.in_air and not vs.armed:
+                    break
+                await self.clock.sleep(0.5)
+        else:
+            await self.clock.sleep(2.0)
+
+    async def align_autopilot(self) -> None:
+        """Put the autopilot's own return height inside the envelope before the flight
+        (RTL_RETURN_ALT: PX4 returns at 30 m by default, above most missions' altitude band):
+        the cruise altitude, clamped into the band. Restored after the flight. Vehicles
+        without parameters are left alone."""
+        inner = self._inner()
+        get = getattr(inner, "get_param", None)
+        put = getattr(inner, "set_param", None)
+        if get is None or put is None:
+            return
+        want = return_altitude_m(self.m.cruise_altitude_m, self.cfg.safety)
+        try:
+            have = float(await asyncio.wait_for(get("RTL_RETURN_ALT"),
+                                                timeout=self.m.timeouts.command_s))
+            if abs(have - want) > 1e-3:
+                await asyncio.wait_for(put("RTL_RETURN_ALT", want),
+                                       timeout=self.m.timeouts.command_s)
+                self._rtl_restore = have
+            self.log.write("param_set", name="RTL_RETURN_ALT", was=have, now=want)
+        except (errors.VehicleError, TimeoutError) as exc:
+            self.log.write("param_set", name="RTL_RETURN_ALT", ok=False, error=str(exc))
+
+    async def restore_autopilot(self) -> None:
+        if self._rtl_restore is None:
+            return
+        put = getattr(self._inner(), "set_param", None)
+        if put is None:
+            return
+        try:
+            await asyncio.wait_for(put("RTL_RETURN_ALT", self._rtl_restore),
+                                   timeout=self.m.timeouts.command_s)
+            self.log.write("param_set", name="RTL_RETURN_ALT", now=self._rtl_restore,
+                           restored=True)
+        except (errors.VehicleError, TimeoutError) as exc:
+            self.log.write("param_set", name="RTL_RETURN_ALT", ok=False, restored=False,
+                           error=str(exc))
+        self._rtl_restore = None
+
+    async def read_failsafe_params(self) -> None:
+        """Read PX4's own failsafe parameters back when the vehicle offers ``get_param``."""
+        get = getattr(self._inner(), "get_param", None)
+        if get is None:
+            self.log.write("failsafe_params", available=False)
+            return
+        values: dict[str, float] = {}
+        for name in PX4_FAILSAFE_PARAMS:
+            try:
+                value = float(await asyncio.wait_for(get(name),
+                                                     timeout=self.m.timeouts.command_s))
+            except Exception as exc:  # noqa: BLE001 - a missing param is reported, not fatal
+                log.debug("param %s: %s", name, exc)
+                continue
+            if math.isfinite(value):
+                values[name] = value
+        self.failsafe_params = values
+        warnings = failsafe_param_warnings(values, self.cfg.safety)
+        self.failsafe_warnings.extend(warnings)
+        self.log.write("failsafe_params", available=True, values=values, warnings=warnings)
+        for w in warnings:
+            log.warning("PX4 failsafe parameters: %s", w)

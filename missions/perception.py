@@ -1,0 +1,330 @@
+"""Perception of one frame: detect, select, track, estimate, fit (paper Sec. 3.2 plus the
+additions docs/mission.md lists). Pure given its inputs; it runs in a worker thread and returns
+an immutable :class:`Measurement`, the only thing that crosses back to the event loop.
+
+The steps, each behind the Protocol of its role: the camera's detector (``Detector``); the
+detection nearest the predicted pixel among the plausible ones (size from the camera's pose,
+the target's colour through the ``Tracker``); at close range the tracker's colour region when
+the detector gives none; the state's estimator (``Estimator``), falling back on the coarse one
+when the fine one refuses; the top-plane fit (``PlaneFitter``) with, at close range, the
+apparent-size range fused in.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.target_state import (
+    PlaneState,
+    fit_std_m,
+    plane_down_m,
+    size_range_scale,
+)
+
+from eaglemission.config import TargetConfig
+from eaglemission.geometry import CameraModel, camera_pose_ned
+from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter, Tracker
+from eaglemission.types import (
+    Detection,
+    DetectionResult,
+    Frame,
+    TargetEstimate,
+    TargetPrior,
+    VehicleState,
+)
+
+
+class Provenance(enum.Enum):
+    """Which estimator accepted the detection (a plane fit may then replace its position:
+    ``Measurement.refined``; the provenance stays what it was)."""
+
+    COARSE = "coarse"
+    FINE = "fine"
+    FALLBACK = "fallback"
+    """The fine estimator refused the detection; the coarse one's estimate, down-weighted."""
+
+
+@dataclass(frozen=True, slots=True)
+class FitHint:
+    """Heading and region model of the last complete close view: they constrain cut views."""
+
+    yaw_deg: float
+    region: str
+
+
+@dataclass(frozen=True, slots=True)
+class PlaneMeasurement:
+    """The plane of the target's top measured by one view's apparent size (``plane_from_size``)."""
+
+    offset_m: float
+    std_m: float
+    frame_t_ns: int
+    range_m: float
+    cost: float
+    region: str
+
+
+@dataclass(frozen=True, slots=True)
+class Tools:
+    """The plugins perception uses for one camera."""
+
+    detector: Detector
+    coarse: Estimator
+    fine: Estimator
+    fitter: PlaneFitter | None = None
+    tracker: Tracker | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """Everything one frame's perception needs, frozen on the loop thread."""
+
+    frame: Frame
+    model: CameraModel
+    state: VehicleState | None
+    """The vehicle's estimated state at the frame's mid-exposure (None: outside the history)."""
+    estimator: str | None
+    """``"coarse"``, ``"fine"`` or None (detect only)."""
+    predicted_px: tuple[float, float] | None
+    close_range: bool
+    fit_hint: FitHint | None
+    plane: PlaneState
+
+
+@dataclass(frozen=True, slots=True)
+class Measurement:
+    """What one frame gave. ``estimate`` is None with ``failure`` saying why (or nothing was
+    asked); ``fit_hint`` is a new hint from a complete close view; ``plane`` a plane
+    measurement from apparent size."""
+
+    camera_id: str
+    frame: Frame
+    state: VehicleState | None
+    role: str | None
+    """The request's estimator role (``"coarse"``, ``"fine"`` or None)."""
+    detection: Detection | None
+    raw_detections: int
+    colour_tracked: bool
+    estimate: TargetEstimate | None
+    provenance: Provenance | None
+    refined: bool
+    """The position is the plane fit of the detection (not the estimator's own)."""
+    failure: str | None
+    fit_hint: FitHint | None
+    plane: PlaneMeasurement | None
+    perception_ms: float
+
+    @property
+    def fine_measurement(self) -> bool:
+        """A close-range position to trust: the fine estimator's, or any plane fit of the
+        detection (a fallback the fit explains is as good: docs/mission.md, "fallbacks")."""
+        return self.estimate is not None and (self.provenance is Provenance.FINE or self.refined)
+
+    @property
+    def full_3d(self) -> bool:
+        """The estimate may be used in full 3-D close in (a PnP pose or a plane fit with the
+        apparent-size range), not only as a direction."""
+        return (self.estimate is not None and self.estimate.full_3d
+                and (self.provenance is Provenance.FINE or self.refined))
+
+
+def touches_border(det: Detection, width_px: int, height_px: int, border_px: float) -> bool:
+    c = det.corners_px
+    return bool((c[:, 0] < border_px).any() or (c[:, 1] < border_px).any()
+                or (c[:, 0] > width_px - 1 - border_px).any()
+                or (c[:, 1] > height_px - 1 - border_px).any())
+
+
+def expected_area_px(model: CameraModel, state: VehicleState, center_px: tuple[float, float],
+                     length_m: float, width_m: float, height_m: float) -> float | None:
+    """Image area a target of this size would have if it were where the detection's centre ray
+    meets the plane of its top face (flat ground); None when the ray does not meet it."""
+    pose = camera_pose_ned(model, state.position_ned_m, state.attitude_q)
+    ray = pose.R @ model.rays_optical(np.asarray([center_px], dtype=np.float64))[0]
+    drop = -height_m - float(pose.t[2])
+    if ray[2] <= 1e-3 or drop <= 0:
+        return None
+    dist = drop / float(ray[2])
+    sin_el = float(ray[2])
+    cos_el = math.sqrt(max(0.0, 1.0 - sin_el * sin_el))
+    f2 = model.fx * model.fy
+    return f2 * (length_m * width_m * sin_el + max(length_m, width_m) * height_m * cos_el) / dist**2
+
+
+def plausible_size(det: Detection, model: CameraModel, state: VehicleState | None,
+                   target: TargetConfig, lo: float = 0.2, hi: float = 5.0) -> bool:
+    """The paper filters the MBR by the target's known size and shape; with the camera's pose
+    the expected size is known at every pixel (ray to the target plane)."""
+    if state is None:
+        return True
+    exp = expected_area_px(model, state, det.center_px, target.length_m, target.width_m,
+                           target.height_m)
+    if exp is None:
+        return False
+    return lo * exp <= det.area_px <= hi * exp
+
+
+def select_detection(result: DetectionResult, predicted_px: tuple[float, float] | None,
+                     width_px: int, height_px: int, border_px: float, gate_px: float,
+                     plausible: object = None, allow_cut: bool = False) -> Detection | None:
+    """The detection to use: the one nearest the predicted target pixel when there is a
+    prediction (within ``gate_px``), else the best-ranked; truncated ones (unless
+    ``allow_cut``) and (with ``plausible``, a predicate) ones of an impossible size are
+    skipped."""
+    dets = [d for d in result.detections
+            if (allow_cut or not touches_border(d, width_px, height_px, border_px))
+            and (plausible is None or plausible(d))]  # type: ignore[operator]
+    if not dets:
+        return None
+    if predicted_px is not None and np.isfinite(predicted_px).all():
+        dist = [math.hypot(d.center_px[0] - predicted_px[0], d.center_px[1] - predicted_px[1])
+                for d in dets]
+        i = int(np.argmin(dist))
+        return dets[i] if dist[i] <= gate_px else None
+    return dets[0]
+
+
+def _prior(camera_id: str, wide_id: str = "wide") -> TargetPrior:
+    return TargetPrior(min_area_px=12.0 if camera_id == wide_id else 100.0)
+
+
+class Perception:
+    """Runs one frame through the tools (:meth:`perceive`; pure apart from the detectors'
+    temporal state, which only this camera's perception touches)."""
+
+    def __init__(self, params: ApproachConfig, target: TargetConfig) -> None:
+        self.p = params
+        self.target = target
+
+    def perceive(self, req: Request, tools: Tools) -> Measurement:
+        t0 = time.perf_counter()
+        p = self.p
+        frame, model, state = req.frame, req.model, req.state
+        result = tools.detector.detect(frame, _prior(frame.camera_id))
+        tracker = tools.tracker if tools.tracker is not None and tools.tracker.available \
+            else None
+        check_colour = tracker is not None and p.colour_check
+        gate_px = 0.25 * max(model.width_px, model.height_px)
+
+        def plausible(d: Detection) -> bool:
+            return (plausible_size(d, model, state, self.target, *p.size_ratio_range)
+                    and (not check_colour or tracker.matches(frame, d)))  # type: ignore[union-attr]
+
+        allow_cut = req.close_range and tools.fitter is not None and p.plane_fit \
+            and req.fit_hint is not None
+        det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
+                               p.image_border_px, gate_px, plausible, allow_cut=allow_cut)
+        track = (req.close_range and p.colour_track and tracker is not None
+                 and req.predicted_px is not None and bool(np.isfinite(req.predicted_px).all()))
+        tracked = False
+        if det is None and track:
+            det = tracker.track(frame, req.predicted_px)  # type: ignore[union-attr,arg-type]
+            tracked = det is not None
+        out = self._estimate(det, req, tools, tracked)
+        if track and not tracked and det is not None and out[0] is None:
+            # the detector's region does not fit the target: try its colour region
+            alt = tracker.track(frame, req.predicted_px)  # type: ignore[union-attr,arg-type]
+            alt_out = self._estimate(alt, req, tools, True)
+            if alt_out[0] is not None:
+                det, out, tracked = alt, alt_out, True
+        est, prov, refined, failure, hint, plane = out
+        return Measurement(frame.camera_id, frame, state, req.estimator, det,
+                           len(result.detections), tracked,
+                           est, prov, refined, failure, hint, plane,
+                           (time.perf_counter() - t0) * 1e3)
+
+    def _estimate(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
+                  ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,
+                             FitHint | None, PlaneMeasurement | None]:
+        """(estimate, provenance, refined, failure, new fit hint, plane measurement)."""
+        if det is None or req.estimator is None or req.state is None:
+            return None, None, False, None, None, None
+        view = CameraView(req.model, req.state, req.frame.timestamp_ns)
+        primary = tools.fine if req.estimator == "fine" else tools.coarse
+        est = primary.estimate(det, view)
+        prov = Provenance.FINE if req.estimator == "fine" else Provenance.COARSE
+        if not est and req.estimator == "fine":
+            # the fine estimator refused (e.g. reprojection error): keep tracking with the
+            # coarse estimate of the same detection, with less weight
+            failed = est
+            est = tools.coarse.estimate(det, view)
+            if est:
+                assert isinstance(est, TargetEstimate)
+                est = replace(est, std_m=est.std_m * self.p.fallback_std_factor,
+                              source=f"{est.source} (fine failed: {failed})")
+                prov = Provenance.FALLBACK
+        if not est:
+            return None, None, False, str(est), None, None
+        assert isinstance(est, TargetEstimate)
+        if not (self.p.plane_fit and tools.fitter is not None):
+            return est, prov, False, None, None, None
+        return self._refine(est, prov, det, view, req, tools.fitter, tracked)
+
+    def _refine(self, est: TargetEstimate, prov: Provenance, det: Detection, view: CameraView,
+                req: Request, fitter: PlaneFitter, tracked: bool
+                ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,
+                           FitHint | None, PlaneMeasurement | None]:
+        """Replace the estimate's position by the top-plane fit of its detection (top face or
+        box silhouette, whichever explains the MBR). In the final approach a detection no
+        model explains (part of the target, a merged blob) is refused; earlier the estimator's
+        value is kept. The fitted position comes from the detection, not from the estimator
+        that accepted it, so its weight is the fit's whatever the provenance (a refined
+        fallback is as good as a refined fine estimate: docs/mission.md, "fallbacks")."""
+        p = self.p
+        m = view.model
+        cam = view.camera_pose_ned
+        cut = touches_border(det, m.width_px, m.height_px, p.image_border_px)
+        hint = req.fit_hint
+        if cut and hint is None:
+            return (None, None, False, "plane fit: the detection is cut by the image border and "
+                    "no complete view gave the target's heading yet", None, None)
+        yaw_hint = hint.yaw_deg if (cut and hint is not None) else None
+        region_hint = hint.region if (cut and hint is not None) else None
+        if tracked:
+            # a colour region is the whole silhouette: the top and the shaded sides share the
+            # target's chromaticity (not the detector's region of the earlier views)
+            region_hint = "box"
+        plane_ground = plane_down_m(0.0, req.plane, p.plane_offset)
+        fit = fitter.fit(det, view, plane_down_m=plane_ground, yaw_hint_deg=yaw_hint,
+                         region_hint=region_hint, iterations=8 if cut else 4)
+        new_hint = None
+        if fit is not None and not cut and fit.cost <= p.plane_fit_max_cost and req.close_range:
+            new_hint = FitHint(fit.yaw_deg, fit.region)
+        if fit is None or fit.cost > p.plane_fit_max_cost:
+            if req.close_range:
+                why = "no fit" if fit is None else f"MBR mismatch {fit.cost:.2f}"
+                return (None, None, False, f"plane fit: {why} (> plane_fit_max_cost="
+                        f"{p.plane_fit_max_cost:g})", new_hint, None)
+            return est, prov, False, None, new_hint, None
+        pos = np.asarray(fit.position_ned_m)
+        d = pos - cam.t
+        rng = float(np.linalg.norm(d))
+        sin_dep = max(float(d[2]) / max(rng, 1e-9), 1e-3)
+        std = fit_std_m(rng, sin_dep, p.plane_fit_angular_std_deg)
+        plane_meas = None
+        size_ratio = fit.size_ratio
+        if p.size_range and req.close_range and size_ratio > 0:
+            # range from the apparent size (known target, 1/range) fused with the plane's
+            # range (the measured plane, or the vehicle's altitude estimate): same ray. A cut
+            # view's size is compared with the model clipped to the image like the detection.
+            plane_std = req.plane.std_m if p.plane_offset else p.altitude_std_m
+            if p.plane_offset and p.plane_from_size and not cut:
+                # the plane this view measures: the size-only range along the same ray
+                down = float(cam.t[2] + d[2] / size_ratio)
+                s_size = p.size_std_fraction * rng
+                plane_meas = PlaneMeasurement(down + float(self.target.height_m),
+                                              s_size * sin_dep, view.timestamp_ns, rng,
+                                              fit.cost, fit.region)
+            d = d * size_range_scale(size_ratio, plane_std, sin_dep, rng, p.size_std_fraction)
+            pos = cam.t + d
+        source = (f"{est.source.split(' ')[0]}+fit:{fit.region} yaw {fit.yaw_deg:.0f} "
+                  f"cost {fit.cost:.2f} size {size_ratio:.3f}" + (" cut" if cut else ""))
+        refined = replace(est, position_ned_m=(float(pos[0]), float(pos[1]), float(pos[2])),
+                          position_cam_m=tuple(float(v) for v in cam.R.T @ d),
+                          std_m=std, source=source)
+        return refined, prov, True, None, new_hint, plane_meas

@@ -1,0 +1,122 @@
+"""Perception of one frame (missions/perception.py): which estimator answered, whether a plane
+fit replaced its position, what counts as a fine measurement. Small real plugins stand in for
+the detector and the estimators; the plane fitter is the real ``top_plane``."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from eaglemission.estimators.top_plane import TopPlaneFitter
+from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.perception import Perception, Provenance, Request, Tools
+from eaglemission.missions.target_state import PlaneState
+from world_helpers import approach_pose, detection_from_polygon
+
+from eaglemission.geometry import camera_pose_ned
+from eaglemission.types import DetectionResult, EstimationFailed, Frame, TargetEstimate
+
+
+class OneDetection:
+    """A detector that always reports the same detection."""
+
+    def __init__(self, det):
+        self.det = det
+
+    def detect(self, frame, prior=None):
+        return DetectionResult(np.zeros(frame.image.shape[:2], np.float32), (self.det,),
+                               frame.timestamp_ns, frame.camera_id, frame.seq)
+
+    def reset(self):
+        pass
+
+
+class FixedEstimator:
+    """Answers one position (or refuses) whatever the detection."""
+
+    def __init__(self, position=None, source="fixed", std_m=0.4):
+        self.position, self.source, self.std_m = position, source, std_m
+
+    def estimate(self, detection, view):
+        if self.position is None:
+            return EstimationFailed("refused on purpose")
+        return TargetEstimate(self.position, (0.0, 0.0, 3.0), view.timestamp_ns,
+                              detection.camera_id, self.source, std_m=self.std_m)
+
+
+@pytest.fixture
+def scene(sitl_config):
+    """The narrow camera 3 m from the target, its top face's outline as the detection."""
+    model = sitl_config.cameras.narrow.to_model("narrow")
+    target = sitl_config.target
+    top = np.array([20.0, 1.0, -target.height_m])
+    pos, q = approach_pose(top, 3.0, 35.0, 10.0)
+    cam = camera_pose_ned(model, pos, q)
+    corners = []
+    for x, y in ((0.2, -0.125), (0.2, 0.125), (-0.2, 0.125), (-0.2, -0.125)):
+        corners.append(top + (x, y, 0.0))
+    px = model.project(cam.inverse().apply(np.asarray(corners)))
+    det = detection_from_polygon(px, "narrow")
+    from eaglemission.types import VehicleState
+
+    state = VehicleState(10**9, tuple(pos), (0.0, 0.0, 0.0), tuple(q))
+    frame = Frame(np.zeros((model.height_px, model.width_px, 3), np.uint8), 10**9, "narrow", 1)
+    return model, target, top, det, state, frame
+
+
+def _perceive(scene, coarse, fine, *, fitter=True, params=None, estimator="fine"):
+    model, target, top, det, state, frame = scene
+    p = params or ApproachConfig(colour_check=False, colour_track=False)
+    tools = Tools(OneDetection(det), coarse, fine,
+                  TopPlaneFitter(target=target) if fitter else None, None)
+    req = Request(frame, model, state, estimator, None, True, None, PlaneState(0.0, 0.04))
+    return Perception(p, target).perceive(req, tools)
+
+
+def test_a_fine_estimate_refined_by_the_plane_fit(scene) -> None:
+    top = scene[2]
+    m = _perceive(scene, FixedEstimator((0.0, 0.0, 0.0)), FixedEstimator((9.0, 9.0, 9.0)))
+    assert m.provenance is Provenance.FINE and m.refined and m.fine_measurement
+    # the position is the fit's (the estimators' values were far off), near the true top
+    assert math.dist(m.estimate.position_ned_m, top) < 0.05
+    assert m.estimate.source.startswith("fixed+fit:")
+
+
+def test_a_fallback_keeps_its_provenance_and_without_a_fitter_its_down_weighting(scene) -> None:
+    """gh-12: a rescued coarse fallback used to be renamed "fit:" and counted as fine by its
+    source prefix. Now the provenance is typed: a fallback stays FALLBACK; the plane fit's
+    position (from the detection) counts as a fine measurement, weighted by the fit; an
+    unrefined fallback is the coarse estimate, down-weighted, and does not count."""
+    params = ApproachConfig(colour_check=False, colour_track=False, fallback_std_factor=3.0)
+    coarse = FixedEstimator((20.1, 1.1, -0.15), source="bearing", std_m=0.3)
+    refined = _perceive(scene, coarse, FixedEstimator(None), params=params)
+    assert refined.provenance is Provenance.FALLBACK and refined.refined
+    assert refined.fine_measurement
+    assert refined.estimate.std_m < 0.3  # the fit's, not 3 x the coarse one's
+    plain = _perceive(scene, coarse, FixedEstimator(None), params=params, fitter=False)
+    assert plain.provenance is Provenance.FALLBACK and not plain.refined
+    assert not plain.fine_measurement and not plain.full_3d
+    assert plain.estimate.std_m == pytest.approx(0.9)
+    assert plain.estimate.position_ned_m == (20.1, 1.1, -0.15)
+
+
+def test_without_a_fitter_the_estimators_positions_are_flown(scene) -> None:
+    """Swapping estimators by config changes the flight: with ``estimators.fitter: null`` the
+    estimator's own position is used (the plane fit replaces every estimator's position)."""
+    a = _perceive(scene, FixedEstimator((0.0, 0.0, 0.0)), FixedEstimator((20.2, 1.0, -0.15)),
+                  fitter=False)
+    b = _perceive(scene, FixedEstimator((0.0, 0.0, 0.0)), FixedEstimator((19.0, 2.0, -0.15)),
+                  fitter=False)
+    assert a.estimate.position_ned_m != b.estimate.position_ned_m
+    fa = _perceive(scene, FixedEstimator((0.0, 0.0, 0.0)), FixedEstimator((20.2, 1.0, -0.15)))
+    fb = _perceive(scene, FixedEstimator((0.0, 0.0, 0.0)), FixedEstimator((19.0, 2.0, -0.15)))
+    assert fa.estimate.position_ned_m == fb.estimate.position_ned_m
+
+
+def test_no_estimator_no_estimate_and_a_refusal_says_why(scene) -> None:
+    m = _perceive(scene, FixedEstimator(None), FixedEstimator(None))
+    assert m.estimate is None and m.failure == "refused on purpose"
+    assert m.detection is not None and m.raw_detections == 1
+    d = _perceive(scene, FixedEstimator((0, 0, 0)), FixedEstimator((0, 0, 0)), estimator=None)
+    assert d.estimate is None and d.failure is None and d.provenance is None
