@@ -351,7 +351,8 @@ def camera_pose_ned(
     return body_pose_ned(position_ned_m, attitude_q) @ mount
 
 
-def ray_plane_points(origin_ned_m: Sequence[float], directions_ned: Any, down_m: float, *,
+def ray_plane_points(origin_ned_m: Sequence[float] | NDArray[np.float64], directions_ned: Any,
+                     down_m: float, *,
                      min_down: float = 1e-9) -> NDArray[np.float64]:
     """Where rays from one origin meet the horizontal plane ``down = down_m`` (NED).
 

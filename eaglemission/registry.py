@@ -18,6 +18,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from eaglemission.config_errors import format_validation_error
 from eaglemission.errors import ConfigError, PluginError
 from eaglemission.interfaces import (
     Camera,
@@ -154,8 +155,6 @@ def get(role: str, name: str) -> type:
 
 def validate_params(role: str, name: str, params: Mapping[str, Any] | None, *, path: str) -> BaseModel:
     """Validate a plugin's params with its own Config model; errors carry the YAML path."""
-    from eaglemission.config import format_validation_error  # local: config imports registry
-
     cls = get(role, name)
     try:
         return cls.Config.model_validate(dict(params or {}))  # type: ignore[attr-defined,no-any-return]

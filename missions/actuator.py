@@ -94,8 +94,10 @@ class Actuator:
     def submit(self, name: str, arg: Any = None) -> None:
         self.queue.put_nowait((name, arg))
 
-    def _inner(self) -> Any:
-        return getattr(self.vehicle, "inner", self.vehicle)
+    def _inner(self) -> Vehicle:
+        """The driver under the envelope (its parameters are the autopilot's)."""
+        inner: Vehicle = getattr(self.vehicle, "inner", self.vehicle)
+        return inner
 
     async def command(self, name: str, coro_fn: Callable[[], Awaitable[Any]]) -> bool:
         timeout = self.m.timeouts.command_s

@@ -28,7 +28,7 @@ from eaglemission.missions.target_state import FilterConfig
 from pydantic import BaseModel, ConfigDict, Field
 from transitions import Machine
 
-from eaglemission.config import SafeAction
+from eaglemission.config import MissionConfig, SafeAction, SafetyConfig
 
 log = logging.getLogger(__name__)
 
@@ -434,7 +434,7 @@ class Abort:
     action: FinalAction
 
 
-def failsafe(state: MissionState, s: Snapshot, mission: Any, safety: Any,
+def failsafe(state: MissionState, s: Snapshot, mission: MissionConfig, safety: SafetyConfig,
              params: ApproachConfig) -> Abort | None:
     """The failsafe that applies in ``state`` (pure; first match in priority order).
 

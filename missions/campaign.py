@@ -46,11 +46,12 @@ def randomise(cfg: MissionFile, rng: np.random.RandomState) -> MissionFile:
             dn = a + u * rng.uniform(0.2, 1.0) * float(seg_len.sum()) + side * rng.uniform(-6, 6)
             if np.linalg.norm(dn - p) >= 4.0:
                 break
+        c = rng.randint(20, 235, size=3)
         distractors.append(DistractorConfig(
             kind=("box", "disc", "stripe")[int(rng.randint(0, 3))], north_m=float(dn[0]),
             east_m=float(dn[1]), size_m=float(rng.uniform(0.3, 0.8)),
             height_m=float(rng.uniform(0.0, 0.2)),
-            color_bgr=tuple(int(v) for v in rng.randint(20, 235, size=3))))  # type: ignore[arg-type]
+            color_bgr=(int(c[0]), int(c[1]), int(c[2]))))
     wind_speed = rng.uniform(0.0, 3.0)
     wind_dir = rng.uniform(-math.pi, math.pi)
     new_sim = sim.model_copy(update={

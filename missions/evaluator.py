@@ -11,15 +11,17 @@ altitude band, horizontal and vertical speed, geofence.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from eaglemission.missions.guidance import tool_errors, tool_point_ned
+from eaglemission.missions.result import MissionResult
 
 from eaglemission.config import MissionFile
 from eaglemission.safety_geometry import inside_geofence
+from eaglemission.types import VehicleState
 
 
 @dataclass(frozen=True)
@@ -64,17 +66,17 @@ class Evaluation:
         return to_jsonable(self)  # type: ignore[no-any-return]
 
 
-def _state_at(traj: Sequence[Any], t_ns: int) -> Any:
+def _state_at(traj: Sequence[VehicleState], t_ns: int) -> VehicleState:
     times = [s.timestamp_ns for s in traj]
     i = int(np.searchsorted(times, t_ns))
     return traj[min(max(i, 0), len(traj) - 1)]
 
 
-def envelope_violations(traj: Sequence[Any], cfg: MissionFile, t0_ns: int,
+def envelope_violations(traj: Sequence[VehicleState], cfg: MissionFile, t0_ns: int,
                         tol: Tolerances = Tolerances()) -> list[Violation]:
     """Contiguous episodes where the TRUE state left the safety envelope (in the air only)."""
     s = cfg.safety
-    checks = {
+    checks: dict[str, tuple[Callable[[VehicleState], float], float, int]] = {
         "max_altitude": (lambda st: -st.position_ned_m[2], s.max_altitude_m + tol.altitude_m, 1),
         "horizontal_speed": (lambda st: math.hypot(*st.velocity_ned_mps[:2]),
                              s.max_horizontal_speed_mps * (1 + tol.speed_fraction) + tol.speed_mps, 1),
@@ -127,7 +129,7 @@ def _close(out: list[Violation], open_: dict[str, list[float]], kind: str, t: in
     out.append(Violation(kind, (start - t0) * 1e-9, worst, limit, (t - start) * 1e-9))
 
 
-def evaluate(result: Any, trajectory: Sequence[Any], cfg: MissionFile,
+def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: MissionFile,
              target_position_ned_m: Sequence[float] | None, *, t0_ns: int,
              expected_action: str | None = None,
              tolerances: Tolerances = Tolerances()) -> Evaluation:

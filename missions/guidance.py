@@ -7,11 +7,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from eaglemission.geometry import quat_to_R, wrap_deg
 from eaglemission.types import XYZ, Quat, Setpoint
+
+if TYPE_CHECKING:
+    from eaglemission.missions.approach import ApproachConfig
+
+    from eaglemission.config import MissionFile
 
 
 def step_towards(current: Sequence[float], goal: Sequence[float], max_step_m: float) -> XYZ:
@@ -145,6 +151,24 @@ class GuidanceConfig:
     tilt_compensation: bool
     trim_gain_per_s: float
     trim_max_m: float
+
+    @classmethod
+    def of(cls, cfg: MissionFile, params: ApproachConfig) -> GuidanceConfig:
+        """From a mission file and the approach's params."""
+        m = cfg.mission
+        return cls(route_ne_m=tuple((w.north_m, w.east_m) for w in m.route),
+                   cruise_altitude_m=m.cruise_altitude_m, cruise_speed_mps=m.cruise_speed_mps,
+                   approach_speed_mps=m.approach_speed_mps,
+                   standoff_horizontal_m=m.standoff.horizontal_m,
+                   standoff_height_m=m.standoff.height_m,
+                   tool_point_m=(float(cfg.tool_point_m[0]), float(cfg.tool_point_m[1]),
+                                 float(cfg.tool_point_m[2])),
+                   grasp_distance_m=m.grasp_distance_m, final_speed_mps=params.final_speed_mps,
+                   yaw_rate_degps=params.yaw_rate_degps,
+                   fine_standoff_tolerance_m=params.fine_standoff_tolerance_m,
+                   tilt_compensation=params.tilt_compensation,
+                   trim_gain_per_s=params.grasp_trim_gain_per_s,
+                   trim_max_m=params.grasp_trim_max_m)
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,8 +21,10 @@ import numpy as np
 from eaglemission.missions.approach import ApproachConfig, MissionState
 from eaglemission.missions.evaluator import Evaluation, evaluate
 from eaglemission.missions.log import MissionLog
-from eaglemission.missions.runner import MissionResult, MissionRunner
+from eaglemission.missions.result import MissionResult
+from eaglemission.missions.runner import MissionRunner
 
+from eaglemission.config import MissionFile
 from eaglemission.context import WORLD
 from eaglemission.interfaces import FlightParts, MissionHooks
 from eaglemission.types import VehicleState
@@ -34,18 +36,18 @@ class ApproachOutcome:
 
     result: MissionResult
     evaluation: Evaluation
-    trajectory: list[Any]
+    trajectory: list[VehicleState]
     """TRUE states when ``judged_on == "truth"``, else the autopilot's reported states."""
     judged_on: str
     target_position_ned_m: tuple[float, float, float] | None
     log: MissionLog
     wall_s: float
     sim_s: float
+    config: MissionFile
     estimated_trajectory: list[tuple[int, tuple[float, float, float]]] = field(
         default_factory=list)
-    world: Any = None
+    world: object | None = None
     t0_ns: int = 0
-    config: Any = None
 
     @property
     def final_state(self) -> str:
@@ -113,7 +115,7 @@ class ApproachOutcome:
         plot_outcome(self, self.config, path)
 
 
-def _evaluate(result: MissionResult, trajectory: list[Any], cfg: Any,
+def _evaluate(result: MissionResult, trajectory: list[VehicleState], cfg: MissionFile,
               target: tuple[float, float, float] | None, t0_ns: int,
               expected_action: str | None) -> Evaluation:
     return evaluate(result, trajectory, cfg, target, t0_ns=t0_ns,
@@ -186,13 +188,16 @@ class ApproachMission:
                     await t
         wall = time.perf_counter() - wall0
         world = p.shared.get(WORLD)
-        target = None if world is None else tuple(float(v) for v in world.target_position_ned_m)
+        target: tuple[float, float, float] | None = None
+        truth_target = getattr(world, "target_position_ned_m", None)
+        if truth_target is not None:
+            target = (float(truth_target[0]), float(truth_target[1]), float(truth_target[2]))
         if p.truth is not None:
             trajectory, judged_on = list(p.truth.trajectory()), "truth"
         else:
             trajectory, judged_on = reported, "estimate"
-        ev = _evaluate(result, trajectory, cfg, target, t0_ns, None)  # type: ignore[arg-type]
+        ev = _evaluate(result, trajectory, cfg, target, t0_ns, None)
         mlog.write("evaluation", judged_on=judged_on, **ev.as_dict())
         mlog.close()
-        return ApproachOutcome(result, ev, trajectory, judged_on, target, mlog, wall,  # type: ignore[arg-type]
-                               (clock.now_ns() - t0_ns) * 1e-9, estimated, world, t0_ns, cfg)
+        return ApproachOutcome(result, ev, trajectory, judged_on, target, mlog, wall,
+                               (clock.now_ns() - t0_ns) * 1e-9, cfg, estimated, world, t0_ns)

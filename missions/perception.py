@@ -324,7 +324,8 @@ class Perception:
             pos = cam.t + d
         source = (f"{est.source.split(' ')[0]}+fit:{fit.region} yaw {fit.yaw_deg:.0f} "
                   f"cost {fit.cost:.2f} size {size_ratio:.3f}" + (" cut" if cut else ""))
+        dc = cam.R.T @ d
         refined = replace(est, position_ned_m=(float(pos[0]), float(pos[1]), float(pos[2])),
-                          position_cam_m=tuple(float(v) for v in cam.R.T @ d),
+                          position_cam_m=(float(dc[0]), float(dc[1]), float(dc[2])),
                           std_m=std, source=source)
         return refined, prov, True, None, new_hint, plane_meas

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from eaglemission.config import MissionFile
+
+if TYPE_CHECKING:
+    from eaglemission.missions.mission import ApproachOutcome
 
 STATE_COLOURS = {"PREFLIGHT": "#999999", "TAKEOFF": "#8c564b", "CRUISE": "#1f77b4",
                  "COARSE_APPROACH": "#ff7f0e", "FINE_APPROACH": "#d62728",
@@ -13,7 +16,7 @@ STATE_COLOURS = {"PREFLIGHT": "#999999", "TAKEOFF": "#8c564b", "CRUISE": "#1f77b
                  "FAILSAFE": "#e377c2"}
 
 
-def plot_outcome(out: Any, cfg: MissionFile, path: Path) -> None:
+def plot_outcome(out: ApproachOutcome, cfg: MissionFile, path: Path) -> None:
     """Top view (true and estimated path, route, target, state changes) and altitude/time."""
     import matplotlib
 
@@ -34,8 +37,11 @@ def plot_outcome(out: Any, cfg: MissionFile, path: Path) -> None:
         ax.plot([p[1] for _, p in out.estimated_trajectory],
                 [p[0] for _, p in out.estimated_trajectory], color="#aaaaaa", lw=1,
                 label="reported (estimate)")
-    tn, te, _ = out.target_position_ned_m
-    ax.plot(te, tn, "s", color="#d62728", ms=9, label="target (truth)")
+    target = out.target_position_ned_m
+    if target is not None:
+        ax.plot(target[1], target[0], "s", color="#d62728", ms=9, label="target (truth)")
+    tn, te = (target[0], target[1]) if target is not None else (n[-1] if n else 0.0,
+                                                                 e[-1] if e else 0.0)
     for t_s, state, _reason in out.result.states[1:]:
         i = min(range(len(ts)), key=lambda k: abs(ts[k] - t_s)) if ts else None
         if i is None:

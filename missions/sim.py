@@ -72,7 +72,7 @@ class FaultyCamera:
         now = self.clock.now_ns()
         if now < self.dropout_until_ns:
             raise errors.GrabTimeout(self.camera_id, timeout_s)
-        frame = self.inner.grab(timeout_s=timeout_s)
+        frame: Frame = self.inner.grab(timeout_s=timeout_s)
         if now < self.occluded_until_ns and self.world is not None:
             truth = self.world.truth(self.camera_id, frame.seq)
             if truth.target_visible and len(truth.target_polygon_px) >= 3:
@@ -82,7 +82,8 @@ class FaultyCamera:
                 big = c + (poly - c) * 1.6  # a grass-coloured cover larger than the target
                 mask = np.zeros(img.shape[:2], np.uint8)
                 cv2.fillPoly(mask, [np.round(big).astype(np.int32)], 255)
-                ring = cv2.dilate(mask, np.ones((15, 15), np.uint8)) & ~mask
+                ring = cv2.bitwise_and(cv2.dilate(mask, np.ones((15, 15), np.uint8)),
+                                       cv2.bitwise_not(mask))
                 colour = np.median(img[ring > 0], axis=0) if (ring > 0).any() else img.mean((0, 1))
                 img[mask > 0] = colour.astype(np.uint8)
                 frame = Frame(img, frame.timestamp_ns, frame.camera_id, frame.seq,

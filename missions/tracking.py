@@ -1,0 +1,204 @@
+"""The target as the mission tracks it, fed with perception's measurements (loop thread).
+
+:class:`TargetTracking` owns the position filter, the plane filter, the wide camera's
+confirmation, the fine approach's counters, the grasp-stability window and the camera choice.
+:meth:`TargetTracking.apply` takes one :class:`~eaglemission.missions.perception.Measurement`
+and the current state's policy; what it may do in that state is the policy's data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from eaglemission.missions import guidance as gd
+from eaglemission.missions.approach import ApproachConfig, StatePolicy
+from eaglemission.missions.log import MissionLog
+from eaglemission.missions.perception import FitHint, Measurement
+from eaglemission.missions.target_state import (
+    PlaneOffsetFilter,
+    PlaneState,
+    TargetFilter,
+    confirmation,
+    grasp_progress,
+    plane_down_m,
+    vertical_reference,
+)
+from eaglemission.missions.views import CameraChoice, ChoiceParams
+
+from eaglemission.config import MissionFile
+from eaglemission.geometry import CameraModel, camera_pose_ned, down_axis_cos_tilt
+from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.types import XYZ, VehicleState
+
+
+@dataclass(frozen=True, slots=True)
+class Applied:
+    """What one measurement changed, for the runner: a fresh estimate reached the filter
+    (wake the setpoints), the fine camera switched."""
+
+    fresh: bool
+    switched_to: str | None
+
+
+class TargetTracking:
+    """The mission's knowledge of the target (see the module docstring)."""
+
+    def __init__(self, cfg: MissionFile, params: ApproachConfig,
+                 models: dict[str, CameraModel], log: MissionLog) -> None:
+        self.cfg, self.p, self.m = cfg, params, cfg.mission
+        self.models = models
+        self.log = log
+        self.filter = TargetFilter(params.filter)
+        self.plane = PlaneOffsetFilter(params.altitude_std_m, params.plane_offset_drift_mps)
+        self.choice = CameraChoice(models[CAMERA_WIDE], models[CAMERA_NARROW],
+                                   cfg.target.length_m, cfg.target.width_m, ChoiceParams(
+                                       params.warm_margin_px, params.narrow_max_fill,
+                                       params.narrow_miss_switch_s, params.image_border_px))
+        self.confirm: list[XYZ] = []
+        self.coarse_std_m = 1.0
+        self.fine_estimates = 0
+        self.grasp_window: list[tuple[float, float]] = []
+        self.grasp_count = 0
+        self.fit_hint: FitHint | None = None
+        self.last_target: XYZ | None = None
+        self.tool_errors: tuple[float, float] | None = None
+        self._last_range_m: float | None = None
+
+    # -- state entries -------------------------------------------------------------------------
+    def seed_filter(self, now_ns: int) -> None:
+        """The coarse approach starts from the confirmed wide positions."""
+        self.filter.reset()
+        for p in self.confirm:
+            self.filter.update(p, self.coarse_std_m, now_ns)
+        self.choice.reset_coarse()
+
+    def start_fine(self) -> None:
+        self.choice.reset_fine()
+        self.fine_estimates = 0
+        self.grasp_count = 0
+        self.grasp_window = []
+        self.fit_hint = None
+
+    # -- queries -------------------------------------------------------------------------------
+    def plane_state(self, t_ns: int | None = None) -> PlaneState:
+        return PlaneState(self.plane.offset_m, self.plane.std_m(t_ns))
+
+    def target_ned_m(self, t_ns: int) -> XYZ | None:
+        filt = self.filter.state(t_ns)
+        return None if filt is None else filt.position_ned_m
+
+    # -- measurements --------------------------------------------------------------------------
+    def apply(self, meas: Measurement, pol: StatePolicy, vehicle_now: VehicleState,
+              now_ns: int, t_s: float) -> Applied:
+        """One processed frame: log it and feed its estimate to the confirmation, the filter,
+        the camera choice and the grasp check."""
+        cam_id, frame, state = meas.camera_id, meas.frame, meas.state
+        p = self.p
+        if meas.fit_hint is not None:
+            self.fit_hint = meas.fit_hint
+        pm = meas.plane
+        if pm is not None and meas.estimate is not None and pm.cost <= p.plane_max_cost:
+            ok = self.plane.update(pm.offset_m, pm.std_m, pm.frame_t_ns)
+            self.log.write("plane", camera=cam_id, measured_m=pm.offset_m, std_m=pm.std_m,
+                           accepted=ok, frame_t_ns=pm.frame_t_ns, range_m=pm.range_m,
+                           cost=pm.cost, region=pm.region, offset_m=self.plane.offset_m,
+                           offset_std_m=self.plane.std_m())
+        det = meas.detection
+        self.log.write("detection", camera=cam_id, seq=frame.seq, frame_t_ns=frame.timestamp_ns,
+                       n=meas.raw_detections, used=det is not None,
+                       center_px=None if det is None else det.center_px,
+                       corners_px=None if det is None else det.corners_px,
+                       score=None if det is None else det.score,
+                       perception_ms=round(meas.perception_ms, 3),
+                       colour_track=meas.colour_tracked)
+        if cam_id == CAMERA_NARROW:
+            self.choice.narrow_result(meas.fine_measurement or meas.role is None, now_ns)
+        est = meas.estimate
+        if est is None and meas.failure is not None:
+            self.log.write("estimate", camera=cam_id, ok=False, reason=meas.failure)
+        if est is not None and math.hypot(*est.position_cam_m) < p.min_estimate_range_m:
+            self.log.write("estimate", camera=cam_id, ok=False,
+                           reason=f"closer than min_estimate_range_m: {est.source}")
+            est = None
+        if est is not None:
+            self.log.write("estimate", camera=cam_id, ok=True, source=est.source,
+                           provenance=None if meas.provenance is None else meas.provenance.value,
+                           position_ned_m=est.position_ned_m, std_m=est.std_m,
+                           position_cam_m=est.position_cam_m)
+        model = self.models[cam_id]
+        cam_t = None if state is None else tuple(
+            camera_pose_ned(model, state.position_ned_m, state.attitude_q).t)
+        plane_m = plane_down_m(self.cfg.target.height_m, self.plane_state(), p.plane_offset)
+        fresh = False
+        if cam_id == CAMERA_WIDE and pol.confirms:
+            pos = None if est is None else vertical_reference(
+                est.position_ned_m, cam_t, plane_m, p.vertical_reference,
+                full_3d_range_m=p.full_3d_range_m)
+            near_last = (pos is None or not pol.reacquires or self.last_target is None
+                         or math.dist(pos[:2], self.last_target[:2])
+                         <= p.search_radius_m + p.confirm_radius_m)
+            self.confirm = confirmation(self.confirm, pos, radius_m=p.confirm_radius_m,
+                                        accept=near_last)
+            if est is not None:
+                self.coarse_std_m = max(est.std_m, 0.2)
+        elif est is not None and pol.tracks:
+            accepted = self.filter.update(
+                vertical_reference(est.position_ned_m, cam_t, plane_m, p.vertical_reference,
+                                   full_3d=meas.full_3d, full_3d_range_m=p.full_3d_range_m),
+                est.std_m, frame.timestamp_ns, allow_reset=pol.filter_may_reset)
+            if accepted and meas.role == "fine" and meas.fine_measurement:
+                self.fine_estimates += 1
+            fresh = accepted
+        filt = self.filter.state(frame.timestamp_ns)
+        switched = None
+        if filt is not None and state is not None:
+            self.last_target = filt.position_ned_m
+            if pol.camera_choice == "coarse":
+                self.choice.update_coarse(state, filt.position_ned_m, cam_id, det)
+            elif pol.camera_choice == "fine":
+                switched = self.choice.update_fine(state, filt.position_ned_m, cam_id, now_ns)
+                if switched is not None:
+                    self.log.write("event", source="mission",
+                                   text=f"fine approach image source -> {switched}")
+        if pol.tool_errors and filt is not None:
+            self._check_grasp(vehicle_now, filt.position_ned_m, counting=pol.grasp_check)
+        return Applied(fresh, switched)
+
+    def _check_grasp(self, vs: VehicleState, target_ned_m: XYZ, *, counting: bool) -> None:
+        """The mission's own tool-point errors; with ``counting``, the grasp-stability count
+        (it stays at 0 at the standoff)."""
+        tool = gd.tool_point_ned(vs.position_ned_m, vs.attitude_q, self.cfg.tool_point_m)
+        h_err, dist = gd.tool_errors(tool, target_ned_m)
+        speed = math.sqrt(sum(v * v for v in vs.velocity_ned_mps))
+        self.grasp_window, self.grasp_count = grasp_progress(
+            self.grasp_window, h_err, dist, slow=counting and speed <= self.p.grasp_max_speed_mps,
+            grasp_distance_m=self.m.grasp_distance_m, tolerance_m=self.m.grasp_tolerance_m,
+            hold_factor=self.p.grasp_hold_factor, accept_fraction=self.p.grasp_accept_fraction,
+            required=self.m.grasp_stable_frames)
+        self.tool_errors = (h_err, dist)
+
+    def use_rangefinder(self, vs: VehicleState, pol: StatePolicy) -> None:
+        """A downward distance reading measures where the ground is *in the vehicle's estimated
+        frame* (estimated down + range x cos tilt): the plane offset the visual fits need, free
+        of the altitude estimate's drift (flat ground between the vehicle and the target)."""
+        d = vs.distance_to_ground_m
+        if (d is None or not self.p.plane_offset or self.p.rangefinder == "off" or not vs.in_air
+                or not pol.rangefinder):
+            return
+        cos_tilt = down_axis_cos_tilt(vs.attitude_q)
+        if not math.isfinite(d) or cos_tilt < 0.5 or d == self._last_range_m:
+            return  # a repeated value is the same sample (telemetry outpaces the sensor)
+        self._last_range_m = d
+        self.plane.update(vs.position_ned_m[2] + d * cos_tilt, self.p.rangefinder_std_m,
+                          vs.timestamp_ns)
+
+    def rangefinder_report(self, vs: VehicleState) -> tuple[str, bool]:
+        """(what the log says about the rangefinder once airborne, whether it is a warning)."""
+        if self.p.rangefinder == "off" or not self.p.plane_offset:
+            return ("rangefinder not used (mission.params): the grasp height follows the "
+                    "vehicle's altitude estimate", False)
+        if vs.distance_to_ground_m is None:
+            return ("no downward rangefinder reading in the telemetry: the grasp height "
+                    "follows the vehicle's altitude estimate (docs/mission.md)", True)
+        return f"rangefinder: {vs.distance_to_ground_m:.2f} m to the ground", False
