@@ -19,6 +19,7 @@ import time
 import cv2
 import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
+from eaglemission.missions.approach import ApproachConfig
 
 from eaglemission.config import load_config
 from eaglemission.geometry import euler_to_quat
@@ -36,7 +37,7 @@ def trajectory(cfg, n: int) -> list[tuple[tuple[float, float, float], tuple[floa
             yaw = 0.0
         else:  # approach: to the stand-off
             a = (s - 0.5) * 2
-            so = cfg.mission.standoff
+            so = ApproachConfig.of(cfg).standoff
             start = np.array([tn - 8.0, 0.0, -cfg.mission.cruise_altitude_m])
             end = np.array([tn - so.horizontal_m, te, -(so.height_m + cfg.target.height_m)])
             p = start + a * (end - start)

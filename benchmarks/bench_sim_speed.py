@@ -43,6 +43,7 @@ from eaglemission.estimators import correspondence as corr
 from eaglemission.estimators.rpnp import refine_pose
 from eaglemission.missions import runner as runner_mod
 from eaglemission.missions import silhouette as sil
+from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.sim import run_simulation
 
 from eaglemission.config import MissionFile, load_config
@@ -68,7 +69,7 @@ def mission_poses(cfg: MissionFile) -> list[tuple[str, tuple[float, float, float
     sim = cfg.simulation
     tn, te = sim.target_north_m, sim.target_east_m
     alt = cfg.mission.cruise_altitude_m
-    so = cfg.mission.standoff
+    so = ApproachConfig.of(cfg).standoff
     return [("cruise", (tn - 12.0, 0.0, -alt), attitude_from_acceleration((1.0, 0.0, 0.0), 0.0)),
             ("standoff", (tn - so.horizontal_m, te, -(so.height_m + cfg.target.height_m)),
              attitude_from_acceleration((0.0, 0.0, 0.0), 0.0)),

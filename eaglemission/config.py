@@ -150,31 +150,12 @@ class RoutePoint(StrictModel):
     east_m: Finite
 
 
-class StandoffConfig(StrictModel):
-    """Where the vehicle waits for the grasp, relative to the target's top-face centre: a
-    horizontal offset (along the approach direction) and a height, so the fixed, tilted
-    cameras still see the target."""
-
-    horizontal_m: NonNegFloat = 1.0
-    height_m: PosFloat = 1.0
-
-
-class TimeoutsConfig(StrictModel):
-    preflight_s: PosFloat = 30.0
-    takeoff_s: PosFloat = 60.0
-    cruise_s: PosFloat = 600.0
-    coarse_approach_s: PosFloat = 120.0
-    fine_approach_s: PosFloat = 120.0
-    grasp_ready_s: PosFloat = 30.0
-    target_lost_s: PosFloat = 20.0
-    command_s: PosFloat = 10.0
-
-
 SafeAction = Literal["hold", "return", "land"]
 
 
 class MissionConfig(StrictModel):
-    """The approach-to-grasp mission (paper Sec. 3.2)."""
+    """The mission: its plugin (``type``, ``params``: the approach's are in
+    docs/configuration.md under ``ApproachConfig``) and the route it cruises."""
 
     type: str = "approach"
     params: dict[str, Any] = Field(default_factory=dict)
@@ -182,17 +163,12 @@ class MissionConfig(StrictModel):
     route: Annotated[list[RoutePoint], Field(min_length=1)]
     cruise_altitude_m: PosFloat = 6.0
     cruise_speed_mps: PosFloat = 2.0
-    approach_speed_mps: PosFloat = 1.0
-    confirm_frames: Annotated[int, Field(ge=1, le=1000)] = 3
-    grasp_distance_m: Annotated[float, Field(gt=0, le=2.0)] = 0.175
-    grasp_tolerance_m: Annotated[float, Field(gt=0, le=1.0)] = 0.05
-    grasp_stable_frames: Annotated[int, Field(ge=1, le=1000)] = 5
-    standoff: StandoffConfig = Field(default_factory=StandoffConfig)
-    timeouts: TimeoutsConfig = Field(default_factory=TimeoutsConfig)
-    on_target_lost: Literal["resume_cruise", "return", "land", "hold"] = "resume_cruise"
-    on_done: Literal["land", "return", "hold"] = "land"
-    grasp_action: Literal["gripper", "callback", "none"] = "gripper"
-    setpoint_rate_hz: Annotated[float, Field(ge=10, le=100)] = 20.0
+
+
+MOVED_TO_MISSION_PARAMS = ("approach_speed_mps", "confirm_frames", "grasp_distance_m",
+                           "grasp_tolerance_m", "grasp_stable_frames", "standoff", "timeouts",
+                           "on_target_lost", "on_done", "grasp_action", "setpoint_rate_hz")
+"""Approach-only keys that moved from ``mission`` to ``mission.params`` (read for one release)."""
 
 
 class GeofenceConfig(StrictModel):
@@ -354,6 +330,21 @@ def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
     mission = data.get("mission")
     params = mission.get("params") if isinstance(mission, dict) else None
     detector = data.get("detector")
+    if isinstance(mission, dict) and any(k in mission for k in MOVED_TO_MISSION_PARAMS):
+        data = copy.deepcopy(data)
+        mission = data["mission"]
+        params = mission.setdefault("params", {})
+        if isinstance(params, dict):
+            for key in MOVED_TO_MISSION_PARAMS:
+                if key in mission:
+                    value = mission.pop(key)
+                    if key in params and params[key] != value:
+                        raise ConfigError(
+                            f"mission.{key}: given both here ({value!r}) and as "
+                            f"mission.params.{key} ({params[key]!r}); keep only the latter")
+                    params[key] = value
+                    warnings.append(f"mission.{key}: moved to mission.params.{key} (read for "
+                                    "this release; write it there)")
     if not isinstance(params, dict) or not isinstance(detector, dict):
         return data, warnings
     moved = [k for k in ("detector_downscale", "narrow_threshold", "colour_tolerance")
@@ -408,7 +399,10 @@ def validate_mapping(data: Any, *, source: str = "<config>", check_plugins: bool
     """Validate a parsed YAML document; raise :class:`ConfigError` listing every problem.
     Moved keys are migrated (:func:`migrate_moved_keys`); their warnings go to ``warnings``
     when given, else to the log."""
-    data, moved = migrate_moved_keys(data)
+    try:
+        data, moved = migrate_moved_keys(data)
+    except ConfigError as exc:
+        raise ConfigError(exc.problems, source=source) from None
     if warnings is not None:
         warnings.extend(moved)
     else:

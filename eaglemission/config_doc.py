@@ -10,6 +10,8 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from eaglemission import config as C
+from eaglemission import registry
+from eaglemission.names import ROLES
 
 
 def _type_name(ann: Any) -> str:
@@ -62,44 +64,57 @@ def _model_of(ann: Any) -> type[BaseModel] | None:
     return None
 
 
+def _walk(lines: list[str], model: type[BaseModel], path: str, *, level: str = "##") -> None:
+    doc = (model.__doc__ or "").strip().splitlines()
+    lines.append(f"{level} `{path or '<top level>'}`" + (f" ({model.__name__})" if path else ""))
+    lines.append("")
+    if doc:
+        lines.append(" ".join(d.strip() for d in doc))
+        lines.append("")
+    if not model.model_fields:
+        lines += ["(no parameters)", ""]
+        return
+    lines.append("| key | type | default | constraint |")
+    lines.append("|---|---|---|---|")
+    nested = []
+    for name, info in model.model_fields.items():
+        if info.default is not PydanticUndefined:
+            default = repr(info.default)
+        elif info.default_factory is not None:
+            default = "(see below)" if _model_of(info.annotation) else repr(info.default_factory())  # type: ignore[call-arg]
+        else:
+            default = "**required**"
+        lines.append(f"| `{name}` | {_type_name(info.annotation)} | {default} | {_constraints(info)} |")
+        sub = _model_of(info.annotation)
+        if sub is not None and sub is not C.PluginSection:
+            nested.append((sub, f"{path}.{name}" if path else name))
+    lines.append("")
+    for sub, p in nested:
+        _walk(lines, sub, p, level=level)
+
+
+def _plugin_params(lines: list[str]) -> None:
+    """Each shipped plugin's ``Config`` (third-party plugins document their own)."""
+    for role in ROLES:
+        for name, ep in sorted(registry.available(role).items()):
+            if not ep.value.startswith("eaglemission."):
+                continue
+            cls = registry.get(role, name)
+            _walk(lines, cls.Config, f"{role} / {name}", level="###")
+
+
 def schema_markdown() -> str:
     lines = ["# Mission file reference", "",
-             "Generated from `eaglemission/config.py` by `python -m eaglemission.config_doc`;",
+             "Generated from `eaglemission/config.py` and the shipped plugins' `Config` models by "
+             "`python -m eaglemission.config_doc`;",
              "a test keeps it in sync. Units are in the key names; frames in conventions.md.", ""]
-    seen: set[type[BaseModel]] = set()
-
-    def walk(model: type[BaseModel], path: str) -> None:
-        if model in seen and path:
-            pass
-        seen.add(model)
-        doc = (model.__doc__ or "").strip().splitlines()
-        lines.append(f"## `{path or '<top level>'}`" + (f" ({model.__name__})" if path else ""))
-        lines.append("")
-        if doc:
-            lines.append(" ".join(d.strip() for d in doc))
-            lines.append("")
-        lines.append("| key | type | default | constraint |")
-        lines.append("|---|---|---|---|")
-        nested = []
-        for name, info in model.model_fields.items():
-            if info.default is not PydanticUndefined:
-                default = repr(info.default)
-            elif info.default_factory is not None:
-                default = "(see below)" if _model_of(info.annotation) else repr(info.default_factory())  # type: ignore[call-arg]
-            else:
-                default = "**required**"
-            lines.append(f"| `{name}` | {_type_name(info.annotation)} | {default} | {_constraints(info)} |")
-            sub = _model_of(info.annotation)
-            if sub is not None and sub is not C.PluginSection:
-                nested.append((sub, f"{path}.{name}" if path else name))
-        lines.append("")
-        for sub, p in nested:
-            walk(sub, p)
-
-    walk(C.MissionFile, "")
+    _walk(lines, C.MissionFile, "")
     lines += ["## Plugin sections", "",
               "`{type: <entry-point name>, params: {...}}`: `params` is validated by the plugin's "
-              "own `Config` model; `eaglemission plugins` lists the names.", ""]
+              "own `Config` model; `eaglemission plugins` lists the names. The shipped plugins' "
+              "models follow, by role (`role / name`); the mission's are under "
+              "`missions / approach`.", ""]
+    _plugin_params(lines)
     return "\n".join(lines)
 
 

@@ -100,7 +100,7 @@ class Actuator:
         return inner
 
     async def command(self, name: str, coro_fn: Callable[[], Awaitable[Any]]) -> bool:
-        timeout = self.m.timeouts.command_s
+        timeout = self.p.timeouts.command_s
         try:
             await asyncio.wait_for(coro_fn(), timeout=timeout)
         except (errors.VehicleError, TimeoutError) as exc:
@@ -143,17 +143,17 @@ class Actuator:
                 return
 
     async def grasp(self) -> None:
-        action = self.m.grasp_action
+        action = self.p.grasp_action
         if action == "gripper":
             await self.command("grab", self.vehicle.grab)
         elif action == "callback" and self.grasp_callback is not None:
             try:
-                await asyncio.wait_for(self.grasp_callback(), timeout=self.m.timeouts.grasp_ready_s)
+                await asyncio.wait_for(self.grasp_callback(), timeout=self.p.timeouts.grasp_ready_s)
                 self.log.write("command", name="grasp_callback", ok=True)
             except Exception as exc:  # a user callback must not crash the mission
                 self.log.write("command", name="grasp_callback", ok=False, error=repr(exc))
         # hold the grasp pose on the live estimate for the stable period before leaving
-        await self.clock.sleep(max(0.0, self.m.grasp_stable_frames / self.p.process_rate_hz))
+        await self.clock.sleep(max(0.0, self.p.grasp_stable_frames / self.p.process_rate_hz))
         self.grasp_done = True
         if self.on_grasp_done is not None:
             self.on_grasp_done()
@@ -198,10 +198,10 @@ class Actuator:
         want = return_altitude_m(self.m.cruise_altitude_m, self.cfg.safety)
         try:
             have = float(await asyncio.wait_for(get("RTL_RETURN_ALT"),
-                                                timeout=self.m.timeouts.command_s))
+                                                timeout=self.p.timeouts.command_s))
             if abs(have - want) > 1e-3:
                 await asyncio.wait_for(put("RTL_RETURN_ALT", want),
-                                       timeout=self.m.timeouts.command_s)
+                                       timeout=self.p.timeouts.command_s)
                 self._rtl_restore = have
             self.log.write("param_set", name="RTL_RETURN_ALT", was=have, now=want)
         except (errors.VehicleError, TimeoutError) as exc:
@@ -215,7 +215,7 @@ class Actuator:
             return
         try:
             await asyncio.wait_for(put("RTL_RETURN_ALT", self._rtl_restore),
-                                   timeout=self.m.timeouts.command_s)
+                                   timeout=self.p.timeouts.command_s)
             self.log.write("param_set", name="RTL_RETURN_ALT", now=self._rtl_restore,
                            restored=True)
         except (errors.VehicleError, TimeoutError) as exc:
@@ -233,7 +233,7 @@ class Actuator:
         for name in PX4_FAILSAFE_PARAMS:
             try:
                 value = float(await asyncio.wait_for(get(name),
-                                                     timeout=self.m.timeouts.command_s))
+                                                     timeout=self.p.timeouts.command_s))
             except Exception as exc:  # noqa: BLE001 - a missing param is reported, not fatal
                 log.debug("param %s: %s", name, exc)
                 continue

@@ -22,13 +22,13 @@ import enum
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from eaglemission.missions.target_state import FilterConfig
 from pydantic import BaseModel, ConfigDict, Field
 from transitions import Machine
 
-from eaglemission.config import MissionConfig, SafeAction, SafetyConfig
+from eaglemission.config import MissionFile, SafeAction, SafetyConfig, StrictModel
 
 log = logging.getLogger(__name__)
 
@@ -166,11 +166,48 @@ OFFBOARD_STATES = frozenset(s for s, p in POLICIES.items() if p.offboard)
 TIMEOUT_FIELD = {s: p.timeout_field for s, p in POLICIES.items() if p.timeout_field}
 
 
+_Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+_NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class StandoffConfig(StrictModel):
+    """Where the vehicle waits for the grasp, relative to the target's top-face centre: a
+    horizontal offset (along the approach direction) and a height, so the fixed, tilted
+    cameras still see the target."""
+
+    horizontal_m: _NonNeg = 2.5
+    height_m: _Pos = 1.5
+
+
+class TimeoutsConfig(StrictModel):
+    preflight_s: _Pos = 30.0
+    takeoff_s: _Pos = 60.0
+    cruise_s: _Pos = 600.0
+    coarse_approach_s: _Pos = 120.0
+    fine_approach_s: _Pos = 120.0
+    grasp_ready_s: _Pos = 30.0
+    target_lost_s: _Pos = 20.0
+    command_s: _Pos = 10.0
+
+
 class ApproachConfig(BaseModel):
     """Extra parameters of the ``approach`` mission (``mission.params``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
+    approach_speed_mps: _Pos = Field(1.0, description="coarse approach and standoff speed")
+    confirm_frames: Annotated[int, Field(ge=1, le=1000)] = Field(
+        3, description="consecutive agreeing wide-camera estimates that confirm the target")
+    grasp_distance_m: Annotated[float, Field(gt=0, le=2.0)] = Field(
+        0.175, description="height of the tool point above the target's top at the grasp pose")
+    grasp_tolerance_m: Annotated[float, Field(gt=0, le=1.0)] = 0.05
+    grasp_stable_frames: Annotated[int, Field(ge=1, le=1000)] = 5
+    standoff: StandoffConfig = Field(default_factory=StandoffConfig)
+    timeouts: TimeoutsConfig = Field(default_factory=TimeoutsConfig)
+    on_target_lost: Literal["resume_cruise", "return", "land", "hold"] = "resume_cruise"
+    on_done: Literal["land", "return", "hold"] = "land"
+    grasp_action: Literal["gripper", "callback", "none"] = "gripper"
+    setpoint_rate_hz: Annotated[float, Field(ge=10, le=100)] = 20.0
     process_rate_hz: float = Field(8.0, gt=0, le=200,
                                    description="frames processed per second per active camera")
     narrow_warmup_frames: int = Field(4, ge=0, le=100,
@@ -277,6 +314,11 @@ class ApproachConfig(BaseModel):
     settle_timeout_s: float = Field(180.0, gt=0, description="after DONE/FAILSAFE, wait this "
                                     "long for the vehicle to land (sim: evaluates the return)")
     filter: FilterConfig = Field(default_factory=FilterConfig)
+
+    @classmethod
+    def of(cls, cfg: MissionFile) -> ApproachConfig:
+        """The approach parameters of a mission file (``mission.params``, validated)."""
+        return cls.model_validate(dict(cfg.mission.params))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -434,7 +476,7 @@ class Abort:
     action: FinalAction
 
 
-def failsafe(state: MissionState, s: Snapshot, mission: MissionConfig, safety: SafetyConfig,
+def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
              params: ApproachConfig) -> Abort | None:
     """The failsafe that applies in ``state`` (pure; first match in priority order).
 
@@ -468,10 +510,10 @@ def failsafe(state: MissionState, s: Snapshot, mission: MissionConfig, safety: S
         return Abort(f"command failed: {s.command_failed}", act(params.timeout_action))
     if state_timed_out(s):
         if state is S.TARGET_LOST:
-            if mission.on_target_lost == "resume_cruise":
+            if params.on_target_lost == "resume_cruise":
                 return None  # handled by the resume_cruise transition
             return Abort(f"target lost for {s.time_in_state_s:.1f} s",
-                         act(mission.on_target_lost))
+                         act(params.on_target_lost))
         return Abort(f"{state.value} timed out after {s.state_timeout_s:g} s",
                      act(params.timeout_action))
     if state is S.CRUISE and route_finished(s):

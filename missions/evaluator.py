@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.guidance import tool_errors, tool_point_ned
 from eaglemission.missions.result import MissionResult
 
@@ -147,7 +148,7 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
         (``ended_safe`` checks the mission chose it), None to skip that check
     """
     traj = list(trajectory)
-    m = cfg.mission
+    m = ApproachConfig.of(cfg)
     h_err = dist = None
     t_gr = result.t_grasp_ready_s
     if t_gr is not None and traj and target_position_ned_m is not None:

@@ -215,7 +215,7 @@ class MissionRunner:
         self.guidance.start_search(self.vehicle.state().position_ned_m, now)
 
     def _enter_final_done(self, now: int) -> None:
-        self.actuator.submit("final", self.m.on_done)
+        self.actuator.submit("final", self.p.on_done)
 
     def _enter_final_failsafe(self, now: int) -> None:
         self.actuator.submit("final", self.machine.action)
@@ -282,7 +282,7 @@ class MissionRunner:
 
     # -- machine -------------------------------------------------------------------------------
     async def _machine_loop(self) -> None:
-        period = 1.0 / self.m.setpoint_rate_hz
+        period = 1.0 / self.p.setpoint_rate_hz
         while not self._stopping and not self.machine.final:
             try:
                 await asyncio.wait_for(self._wake_machine.wait(), timeout=period)
@@ -290,7 +290,7 @@ class MissionRunner:
                 pass
             self._wake_machine.clear()
             snap = self.snapshot()
-            abort = failsafe(self.machine.state, snap, self.m, self.cfg.safety, self.p)
+            abort = failsafe(self.machine.state, snap, self.cfg.safety, self.p)
             self.machine.step(snap, abort)
 
     def snapshot(self) -> Snapshot:
@@ -300,7 +300,7 @@ class MissionRunner:
         pol = self.policy
         vs = self.vehicle.state()
         filt = self.track.filter.state(now)
-        timeout = (getattr(self.m.timeouts, pol.timeout_field) if pol.timeout_field
+        timeout = (getattr(self.p.timeouts, pol.timeout_field) if pol.timeout_field
                    else math.inf)
         entered = self._entered_ns.get(pol.timeout_from or st, now)
         camera_failed = pol.camera_watch and self.pump.failed(now, self.p.camera_failure_after_s)
@@ -328,7 +328,7 @@ class MissionRunner:
             takeoff_altitude_m=self.m.cruise_altitude_m,
             takeoff_tolerance_m=self.p.takeoff_tolerance_m,
             route_finished=self.guidance.route_finished(vs.position_ned_m),
-            confirmed_frames=len(self.track.confirm), confirm_frames=self.m.confirm_frames,
+            confirmed_frames=len(self.track.confirm), confirm_frames=self.p.confirm_frames,
             target_in_narrow_view=self.track.choice.target_in_narrow,
             narrow_warm=self._processed.get(CAMERA_NARROW, 0) >= self.p.narrow_warmup_frames,
             has_target=filt is not None, target_age_s=filt.age_s if filt else math.inf,
@@ -339,10 +339,10 @@ class MissionRunner:
             fine_estimates=self.track.fine_estimates,
             fine_min_estimates=self.p.fine_min_estimates,
             grasp_stable_frames=self.track.grasp_count,
-            grasp_required_frames=self.m.grasp_stable_frames, grasp_done=act.grasp_done,
+            grasp_required_frames=self.p.grasp_stable_frames, grasp_done=act.grasp_done,
             search_exhausted=(pol.goal is Goal.SEARCH
-                              and in_state_s > self.m.timeouts.target_lost_s),
-            on_target_lost=self.m.on_target_lost, link_lost_s=self.telemetry.link_lost_s(now),
+                              and in_state_s > self.p.timeouts.target_lost_s),
+            on_target_lost=self.p.on_target_lost, link_lost_s=self.telemetry.link_lost_s(now),
             link_loss_timeout_s=self.cfg.safety.link_loss_timeout_s,
             gps_ok=vs.gps_fix and (vs.position_valid or not vs.link_ok),
             battery_remaining=vs.battery_remaining,
@@ -362,7 +362,7 @@ class MissionRunner:
         return inside_geofence(self.cfg.safety.geofence, pos[0], pos[1])
 
     async def _setpoint_loop(self) -> None:
-        period = 1.0 / self.m.setpoint_rate_hz
+        period = 1.0 / self.p.setpoint_rate_hz
         last_ns = self.clock.now_ns()
         while not self._stopping:
             try:
@@ -390,7 +390,7 @@ class MissionRunner:
             sp = step.setpoint
             try:
                 await asyncio.wait_for(self.vehicle.set_setpoint(sp),
-                                       timeout=self.m.timeouts.command_s)
+                                       timeout=self.p.timeouts.command_s)
             except (errors.VehicleError, TimeoutError) as exc:
                 self.log.write("event", source="setpoint", text=f"setpoint refused: {exc}")
                 continue
@@ -413,7 +413,7 @@ class MissionRunner:
         act = self.actuator
         return MissionResult(
             final_state=self.machine.state.value, reason=self.machine.reason,
-            action=self.machine.outcome_action(self.m.on_done),
+            action=self.machine.outcome_action(self.p.on_done),
             states=self.states, t_start_s=0.0, t_end_s=self._t_s(),
             t_grasp_ready_s=self.t_grasp_ready_s,
             estimated_tool_errors_m=self.track.tool_errors,

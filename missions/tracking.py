@@ -173,9 +173,9 @@ class TargetTracking:
         speed = math.sqrt(sum(v * v for v in vs.velocity_ned_mps))
         self.grasp_window, self.grasp_count = grasp_progress(
             self.grasp_window, h_err, dist, slow=counting and speed <= self.p.grasp_max_speed_mps,
-            grasp_distance_m=self.m.grasp_distance_m, tolerance_m=self.m.grasp_tolerance_m,
+            grasp_distance_m=self.p.grasp_distance_m, tolerance_m=self.p.grasp_tolerance_m,
             hold_factor=self.p.grasp_hold_factor, accept_fraction=self.p.grasp_accept_fraction,
-            required=self.m.grasp_stable_frames)
+            required=self.p.grasp_stable_frames)
         self.tool_errors = (h_err, dist)
 
     def use_rangefinder(self, vs: VehicleState, pol: StatePolicy) -> None:

@@ -23,12 +23,9 @@ def core_checks(cfg: MissionFile) -> list[str]:
         problems.append(
             f"mission.cruise_altitude_m: must lie in the safety altitude band "
             f"[{s.min_altitude_m}, {s.max_altitude_m}], got {m.cruise_altitude_m}")
-    for speed_name, limit in (("cruise_speed_mps", s.max_horizontal_speed_mps),
-                              ("approach_speed_mps", s.max_horizontal_speed_mps)):
-        v = getattr(m, speed_name)
-        if v > limit:
-            problems.append(f"mission.{speed_name}: exceeds safety.max_horizontal_speed_mps "
-                            f"({limit}), got {v}")
+    if m.cruise_speed_mps > s.max_horizontal_speed_mps:
+        problems.append(f"mission.cruise_speed_mps: exceeds safety.max_horizontal_speed_mps "
+                        f"({s.max_horizontal_speed_mps}), got {m.cruise_speed_mps}")
     from eaglemission.safety_geometry import inside_geofence
 
     for i, wp in enumerate(m.route):

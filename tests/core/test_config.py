@@ -100,10 +100,6 @@ MUTATIONS: list[tuple[str, Any, str]] = [
     ("mission.route.0.north_m", None, "mission.route[0].north_m: must be a number, got None"),
     ("mission.route.0.up_m", 3, "mission.route[0].up_m: unknown key"),
     ("mission.cruise_altitude_m", -5, "mission.cruise_altitude_m: must be > 0, got -5"),
-    ("mission.grasp_distance_m", 5, "mission.grasp_distance_m: must be <= 2, got 5"),
-    ("mission.confirm_frames", 2.5, "mission.confirm_frames: must be an integer, got 2.5"),
-    ("mission.timeouts.fine_approach_s", -1, "mission.timeouts.fine_approach_s: must be > 0, got -1"),
-    ("mission.on_done", "crash", "mission.on_done: must be one of 'land', 'return' or 'hold'"),
     ("mission.route_frame", "lla", "mission.route_frame: must be one of 'ned_home'"),
     ("safety.max_altitude_m", 0, "safety.max_altitude_m: must be > 0, got 0"),
     ("safety.min_altitude_m", 25, "min_altitude_m (25.0) must be below max_altitude_m (20.0)"),
@@ -125,6 +121,44 @@ def test_malformed_variant_of_shipped_config(path: str, value: Any, expected: st
     data = mutate(data, path, delete=True) if value is DELETE else mutate(data, path, value)
     msg = errors_of(data)
     assert expected in msg, msg
+
+
+MISSION_PARAM_MUTATIONS = [
+    ("mission.params.grasp_distance_m", 5, "mission.params.grasp_distance_m: must be <= 2, got 5"),
+    ("mission.params.confirm_frames", 2.5, "mission.params.confirm_frames: must be an integer, got 2.5"),
+    ("mission.params.timeouts.fine_approach_s", -1,
+     "mission.params.timeouts.fine_approach_s: must be > 0, got -1"),
+    ("mission.params.on_done", "crash",
+     "mission.params.on_done: must be one of 'land', 'return' or 'hold'"),
+]
+
+
+@pytest.mark.parametrize(("path", "value", "expected"), MISSION_PARAM_MUTATIONS,
+                         ids=[m[0] + "=" + repr(m[1])[:20] for m in MISSION_PARAM_MUTATIONS])
+def test_malformed_mission_params_name_their_path(path: str, value: Any, expected: str) -> None:
+    """The approach mission's own keys are checked by its params model, at load time."""
+    data = mutate(shipped_data(), path, value)
+    with pytest.raises(ConfigError) as exc:
+        validate_mapping(data)
+    assert expected in str(exc.value), str(exc.value)
+
+
+def test_moved_mission_key_is_read_with_a_warning_and_conflicts_are_refused() -> None:
+    data = shipped_data()
+    value = data["mission"]["params"].pop("grasp_distance_m", 0.5)
+    data["mission"]["grasp_distance_m"] = value
+    warnings: list[str] = []
+    cfg = validate_mapping(data, warnings=warnings)
+    assert cfg.mission.params["grasp_distance_m"] == value
+    assert any("mission.grasp_distance_m: moved to mission.params.grasp_distance_m" in w
+               for w in warnings)
+    data["mission"]["params"]["grasp_distance_m"] = value + 0.1
+    with pytest.raises(ConfigError, match="given both here"):
+        validate_mapping(data)
+    data["mission"]["params"].pop("grasp_distance_m")
+    data["mission"]["grasp_distance_m"] = 5
+    with pytest.raises(ConfigError, match="mission.params.grasp_distance_m: must be <= 2"):
+        validate_mapping(data)
 
 
 def test_every_error_is_reported_at_once() -> None:
@@ -303,7 +337,7 @@ def test_validate_cli_refuses_a_resolution_that_disagrees_with_the_calibration(
 def test_moved_mission_keys_are_read_with_a_warning(tmp_path: Path) -> None:
     data = shipped_data()
     data["detector"]["params"] = {"preset": "field"}
-    data["mission"]["params"] = {"detector_downscale": 3, "narrow_threshold": "otsu"}
+    data["mission"]["params"].update(detector_downscale=3, narrow_threshold="otsu")
     f = tmp_path / "m.yaml"
     f.write_text(yaml.safe_dump(data))
     warnings: list[str] = []
@@ -317,7 +351,7 @@ def test_moved_mission_keys_are_read_with_a_warning(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     assert "warning: mission.params.detector_downscale: moved to detector.params.downscale" \
         in r.stderr
-    assert data["mission"]["params"] == {"detector_downscale": 3, "narrow_threshold": "otsu"}
+    assert data["mission"]["params"]["detector_downscale"] == 3  # the input is not changed
 
 
 def test_validate_cli_embedded_default() -> None:

@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import Fault, effective_vehicle_config, run_simulation
+from eaglemission.missions.sim import effective_vehicle_config, run_simulation
+from fault_harness import Fault, fly_with_faults
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile
@@ -80,7 +82,7 @@ def test_nominal_mission_reaches_grasp_ready(fast_config: MissionFile, tmp_path:
     # the mission's own estimate said "ready"; the truth must agree within a loose bound here
     # (the tight figures are measured by benchmarks/bench_mission.py and the campaign)
     assert ev.horizontal_error_m < 0.15
-    assert abs(ev.grasp_distance_m - fast_config.mission.grasp_distance_m) < 0.1
+    assert abs(ev.grasp_distance_m - ApproachConfig.of(fast_config).grasp_distance_m) < 0.1
     recs = _log_intact(log, out)
     assert any(r["kind"] == "setpoint" and r["latency_ms"] is not None for r in recs)
     assert any(r["kind"] == "command" and r["name"] == "grab" and r["ok"] for r in recs)
@@ -97,7 +99,7 @@ def test_failsafe_faults_end_as_configured(fast_config: MissionFile, tmp_path: P
                                            fault: Fault, state: str, final: str,
                                            action: str) -> None:
     log = tmp_path / "fault.jsonl"
-    out = run_simulation(fast_config, log_path=log, faults=[fault])
+    out = fly_with_faults(fast_config, [fault], log_path=log)
     assert out.result.final_state == final and out.result.action == action, out.result.reason
     assert out.evaluation.ended_safe, out.evaluation.explanation
     assert out.evaluation.violations == []
@@ -112,7 +114,7 @@ def test_failsafe_faults_end_as_configured(fast_config: MissionFile, tmp_path: P
 def test_short_perception_faults_are_bridged(fast_config: MissionFile, tmp_path: Path,
                                             fault: Fault) -> None:
     log = tmp_path / "fault.jsonl"
-    out = run_simulation(fast_config, log_path=log, faults=[fault])
+    out = fly_with_faults(fast_config, [fault], log_path=log)
     assert "GRASP_READY" in _states(out) and out.result.final_state == "DONE"
     _log_intact(log, out)
 
@@ -141,8 +143,8 @@ def test_record_writes_both_streams_and_telemetry(fast_config: MissionFile,
     from eaglemission.recording import read_camera_model, read_telemetry
 
     rec = tmp_path / "rec"
-    out = run_simulation(fast_config, record_dir=rec,
-                         faults=[Fault("battery_low", "TAKEOFF", 1.5, 0.0, 0.1)])
+    out = fly_with_faults(fast_config, [Fault("battery_low", "TAKEOFF", 1.5, 0.0, 0.1)],
+                          record_dir=rec)
     assert out.result.final_state == "FAILSAFE"
     assert len(read_telemetry(rec)) > 10
     for cam in ("wide", "narrow"):
@@ -169,9 +171,9 @@ def test_rangefinder_removes_the_altitude_estimate_error_from_the_grasp_height(
     cfg = variant(fast_config, vehicle=vehicle,
                   simulation={"wind_ne_mps": (0.0, 0.0), "mount_error_deg": 0.0,
                               "focal_error_fraction": 0.0})
-    m = cfg.mission
+    m = ApproachConfig.of(cfg)
     with_rf = run_simulation(cfg, keep_log=False)
-    off = variant(cfg, mission={"params": {**m.params, "rangefinder": "off"}})
+    off = variant(cfg, mission={"params": {**cfg.mission.params, "rangefinder": "off"}})
     without = run_simulation(off, keep_log=False)
     for out in (with_rf, without):
         assert out.result.t_grasp_ready_s is not None, out.result.reason

@@ -143,7 +143,7 @@ def test_abort_from_every_active_state(state: MissionState) -> None:
 
 def _fs(state: MissionState, snap: Snapshot, **params: object) -> Abort | None:
     cfg = load_config(check_plugins=False)
-    return failsafe(state, snap, cfg.mission, cfg.safety, ApproachConfig(**params))
+    return failsafe(state, snap, cfg.safety, ApproachConfig(**params))
 
 
 def test_failsafes_map_to_configured_actions() -> None:
