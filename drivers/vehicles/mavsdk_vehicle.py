@@ -53,9 +53,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, Protocol
 
-from eaglemission.drivers.vehicles.hil_truth import MSG_ID as HIL_MSG_ID
-from eaglemission.drivers.vehicles.hil_truth import HilTruth
-from eaglemission.drivers.vehicles.simulated import (
+from eaglemission.drivers.vehicles.events import (
     EVENT_FAILSAFE,
     EVENT_GRIPPER,
     EVENT_LINK,
@@ -63,7 +61,10 @@ from eaglemission.drivers.vehicles.simulated import (
     EVENT_MODE,
     EVENT_REFUSED,
     EVENT_STATUS,
+    EVENT_WATCHDOG,
 )
+from eaglemission.drivers.vehicles.hil_truth import MSG_ID as HIL_MSG_ID
+from eaglemission.drivers.vehicles.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.watchdog import OffboardWatchdog
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -90,7 +91,6 @@ from eaglemission.types import (
 
 log = logging.getLogger(__name__)
 
-EVENT_WATCHDOG = "watchdog"  # the offboard watchdog commanded HOLD; data: age_s
 MAVSDK_REMEDY = 'the MAVSDK driver needs mavsdk 4.1: pip install "mavsdk>=4.1,<4.2"'
 
 _REMEDIES = {
