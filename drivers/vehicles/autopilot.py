@@ -24,129 +24,31 @@ commands still in flight (the newest command wins, docs/vehicles.md).
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal
 
 from eaglemission.drivers.vehicles.autopilot_mission import MissionExecutor, MissionItem
+from eaglemission.drivers.vehicles.autopilot_monitors import (
+    BatteryMonitor,
+    GpsMonitor,
+    LandDetector,
+)
+from eaglemission.drivers.vehicles.autopilot_params import (
+    MANUAL_ACTION_MODES,
+    MANUAL_MODES,
+    AutopilotListener,
+    AutopilotParams,
+    FailsafeAction,
+    LandedState,
+    ModeSource,
+)
 from eaglemission.drivers.vehicles.dynamics import MulticopterDynamics
 
 from eaglemission.types import XYZ, FlightMode, Setpoint
 
-ModeSource = Literal["command", "autopilot", "failsafe", "pilot"]
-
-
-class FailsafeAction(enum.StrEnum):
-    """What a failsafe does (PX4's COM_OBL_RC_ACT / NAV_DLL_ACT / COM_LOW_BAT_ACT choices)."""
-
-    HOLD = "hold"
-    LAND = "land"
-    RETURN = "return"
-    POSITION = "position_no_rc"  # Position mode without RC input: PX4 descends (recorded b)
-    ALTITUDE = "altitude_no_rc"
-    MANUAL = "manual_no_rc"
-    DISARM = "disarm"  # also Terminate
-
-    @classmethod
-    def from_com_obl_rc_act(cls, code: int) -> FailsafeAction:
-        """COM_OBL_RC_ACT: 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold,
-        6 Terminate, 7 Disarm."""
-        return {0: cls.POSITION, 1: cls.ALTITUDE, 2: cls.MANUAL, 3: cls.RETURN, 4: cls.LAND,
-                5: cls.HOLD}.get(code, cls.DISARM)
-
-
-_MANUAL_ACTION_MODES = {FailsafeAction.POSITION: FlightMode.POSCTL,
-                        FailsafeAction.ALTITUDE: FlightMode.ALTCTL,
-                        FailsafeAction.MANUAL: FlightMode.MANUAL}
-
-
-class LandedState(enum.IntEnum):
-    """MAV_LANDED_STATE as PX4 reports it in EXTENDED_SYS_STATE."""
-
-    UNDEFINED = 0
-    ON_GROUND = 1
-    IN_AIR = 2
-    TAKEOFF = 3
-    LANDING = 4
-
-
-MANUAL_MODES = frozenset({FlightMode.MANUAL, FlightMode.ALTCTL, FlightMode.POSCTL,
-                          FlightMode.ACRO, FlightMode.STABILIZED})
-POSITION_MODES = frozenset({FlightMode.TAKEOFF, FlightMode.HOLD, FlightMode.MISSION,
-                            FlightMode.RETURN_TO_LAUNCH, FlightMode.OFFBOARD, FlightMode.POSCTL})
-"""Modes that need a position estimate (the GPS-loss failsafe fires in them)."""
-_PREFLIGHT_EXEMPT = frozenset({FlightMode.TAKEOFF, FlightMode.MISSION, FlightMode.OFFBOARD})
-_BATTERY_NAMES = {1: "Low", 2: "Critical", 3: "Emergency"}
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class AutopilotParams:
-    """The autopilot's parameters (PX4 names in brackets).
-
-    Where the simulated vehicle and the emulator behaved differently before they shared this
-    model, a parameter keeps each one's behaviour; the value each sets is given as
-    ``sim`` / ``emu`` (built by ``simulated.autopilot_params`` and the emulator's
-    ``Px4Emulator.autopilot_params``).
-    """
-
-    home_altitude_amsl_m: float = 489.4
-    cruise_speed_mps: float = 5.0  # [MPC_XY_CRUISE] goto, RTL return, mission legs
-    takeoff_speed_mps: float = 1.5  # [MPC_TKO_SPEED] takeoff and the mission's first climb
-    offboard_max_speed_mps: float = 10.0  # [MPC_XY_VEL_MAX] offboard position setpoints
-    takeoff_spoolup_s: float = 1.5  # on the ground only; sim 1.5 / emu 1.0 (recorded: ~1.8 s)
-    takeoff_ramp_s: float = 3.0  # [MPC_TKO_RAMP_T] climb-rate limit ramp; sim 3 / emu 0
-    takeoff_accept_below_m: float = 0.3  # TAKEOFF -> HOLD this far below; sim 0.3 / emu NAV_MC_ALT_RAD
-    takeoff_accept_above_m: float = 0.3  # ... or above the altitude; sim 0.3 / emu inf
-    in_air_altitude_m: float = 0.3  # "Takeoff detected" above this height
-    land_detect_s: float = 1.0  # on the ground this long: "Landing detected"
-    auto_disarm_after_land_s: float = 2.0  # [COM_DISARM_LAND]
-    auto_disarm_preflight_s: float | None = 10.0  # [COM_DISARM_PRFLT]; emu: detect + COM_DISARM_LAND
-    preflight_disarm_text: str = "Disarmed by auto preflight disarming"  # emu "Disarmed by landing"
-    auto_disarm_spares_climb: bool = False  # emu True: no auto-disarm while climbing
-    # (TAKEOFF, a mission's first climb, an offboard setpoint above 0.3 m)
-    disarm_restores_intended_mode: bool = False
-    """After a disarm: sim False: HOLD; emu True (recorded b): the mode the user intended
-    after a failsafe landing, HOLD after LAND / RTL / TAKEOFF, else unchanged."""
-    offboard_loss_timeout_s: float = 0.5  # [COM_OF_LOSS_T]
-    offboard_loss_action: FailsafeAction = FailsafeAction.HOLD  # [COM_OBL_RC_ACT]
-    offboard_loss_land_after_s: float | None = None  # hold, then land after this long
-    position_no_rc_descent_mps: float = 0.65  # recorded b: Position mode without RC sinks
-    rtl_return_altitude_m: float = 10.0  # [RTL_RETURN_ALT]
-    rtl_land_max_speed_mps: float = 0.5  # RTL lands within 1 m of home below this speed; emu inf
-    mission_vertical_acceptance_m: float = 0.8  # [NAV_MC_ALT_RAD]
-    mission_acceptance_radius_m: float = 2.0  # [NAV_ACC_RAD] items without their own
-    mission_end_brake: bool = False  # emu True: brake where the last item was reached
-    gps_loss_failsafe_delay_s: float = 1.0  # [COM_POS_FS_DELAY]
-    gps_loss_action: FailsafeAction = FailsafeAction.LAND
-    gps_failsafe_text: str | None = None  # emu: a status text before the failsafe's own
-    battery_drain_per_s: float = 1.0 / 1200.0
-    battery_drain_on_ground: bool = True  # sim: while the motors run; emu: in the air only
-    min_arm_battery_fraction: float = 0.15  # emu [BAT_CRIT_THR]
-    battery_low_fraction: float | None = None  # [BAT_LOW_THR]; sim None (no low level)
-    battery_critical_fraction: float = 0.07  # [BAT_CRIT_THR]
-    battery_emergency_fraction: float = 0.05  # [BAT_EMERGEN_THR]
-    battery_critical_action: FailsafeAction | None = FailsafeAction.RETURN  # [COM_LOW_BAT_ACT]
-    battery_emergency_action: FailsafeAction | None = FailsafeAction.LAND
-    battery_warnings: bool = False  # emu True: "Low battery level" etc. status texts
-    battery_check_in_flight_only: bool = True  # emu False: levels tracked on the ground too
-
-
-class AutopilotListener(Protocol):
-    """Where the autopilot's reports go (the vehicle driving it)."""
-
-    def on_status(self, text: str, severity: str) -> None: ...
-
-    def on_mode(self, old: FlightMode, new: FlightMode, source: ModeSource) -> None: ...
-
-    def on_failsafe(self, reason: str, action: FailsafeAction) -> None: ...
-
-    def on_armed(self, armed: bool) -> None: ...
-
-    def on_mission_item(self, index: int, total: int) -> None: ...
-
-    def on_gps(self, ok: bool) -> None: ...
+__all__ = ["Autopilot", "AutopilotListener", "AutopilotParams", "FailsafeAction", "LandedState",
+           "MissionItem", "ModeSource"]
 
 
 class Autopilot:
@@ -164,23 +66,16 @@ class Autopilot:
         self.mode = FlightMode.HOLD
         self.intended_mode = FlightMode.HOLD  # what the user chose (failsafes do not change it)
         self.armed = False
-        self.in_air = False  # the land detector's verdict
         self.failsafe_active = False
         self.manual_input = False  # a pilot with centred sticks holds Position/Altitude mode
         self.offboard_active = False  # a client's offboard session (ended by other commands)
         self.gripper: Literal["unknown", "grab", "release"] = "unknown"
-        self.battery = 1.0
         self.mission = MissionExecutor(self)
         self.setpoint: Setpoint | None = None  # latest offboard position setpoint...
         self.setpoint_velocity: tuple[XYZ, float | None] | None = None  # ...or velocity + yaw
         self.setpoint_ns = 0
         self.offboard_signal_grace: Callable[[], bool] | None = None  # emulator: wall-time guard
-        self._battery_level = 0  # 0 ok, 1 low, 2 critical, 3 emergency (handled)
         self._taking_off = False  # a climb from the ground (MAV_LANDED_STATE_TAKEOFF)
-        self._ground_since_ns: int | None = None
-        self._landed_ns: int | None = None
-        self._flew_since_arm = False
-        self._armed_ns = 0
         self._takeoff_alt_m = 0.0
         self._takeoff_go_ns = 0
         self._takeoff_climbing = False
@@ -189,24 +84,28 @@ class Autopilot:
         self._rtl_alt_m = 0.0
         self._goto: tuple[Setpoint, float | None] | None = None
         self._failsafe_hold_until_ns: int | None = None
-        self._gps_down_until_ns: int | None = None
-        self._gps_down_since_ns = 0
-        self._gps_failsafe_done = False
+        self.land_detector = LandDetector(self)
+        self.gps = GpsMonitor(self)
+        self.power = BatteryMonitor(self)
 
-    # ------------------------------------------------------------------------------------------
-    # state
-    # ------------------------------------------------------------------------------------------
+    @property
+    def in_air(self) -> bool:
+        """The land detector's verdict."""
+        return self.land_detector.in_air
+
+    @property
+    def battery(self) -> float:
+        """Remaining battery, 0..1."""
+        return self.power.fraction
+
     @property
     def gps_ok(self) -> bool:
-        return self._gps_down_until_ns is None
+        return self.gps.ok
 
     @property
     def position_valid(self) -> bool:
         """False once GPS has been lost for ``gps_loss_failsafe_delay_s``."""
-        if self._gps_down_until_ns is None:
-            return True
-        return ((self.dyn.time_ns - self._gps_down_since_ns)
-                < self.params.gps_loss_failsafe_delay_s * 1e9)
+        return self.gps.position_valid()
 
     def not_armable_reason(self) -> str:
         if not self.gps_ok:
@@ -248,9 +147,7 @@ class Autopilot:
     # ------------------------------------------------------------------------------------------
     def arm(self) -> None:
         self.armed = True
-        self._armed_ns = self.dyn.time_ns
-        self._flew_since_arm = False
-        self._landed_ns = None
+        self.land_detector.on_arm(self.dyn.time_ns)
         self.dyn.set_motors(True)
         self.status("Armed by external command")
         self.listener.on_armed(True)
@@ -259,15 +156,14 @@ class Autopilot:
         """Armed and hovering (a simulation starting in the air)."""
         dyn = self.dyn
         self.armed = True
-        self.in_air = True
-        self._flew_since_arm = True
+        self.land_detector.airborne()
         dyn.set_motors(True)
         dyn.an = dyn.ae = dyn.ad = 0.0
         dyn.on_ground = False
 
     def disarm(self, text: str) -> None:
         self.armed = False
-        self.in_air = False
+        self.land_detector.in_air = False
         self._taking_off = False
         self.dyn.set_motors(False)
         self.offboard_active = False
@@ -432,30 +328,22 @@ class Autopilot:
             dyn.command_land(immediate=True)
         elif action == FailsafeAction.RETURN:
             self.start_rtl("failsafe")
-        elif action in _MANUAL_ACTION_MODES:
+        elif action in MANUAL_ACTION_MODES:
             # PX4 without RC (COM_OBL_RC_ACT=0, recorded b): the mode cannot run its flight
             # task and the vehicle descends (~0.65 m/s) until it lands and disarms.
             self.manual_input = False
-            self.set_mode(_MANUAL_ACTION_MODES[action], "failsafe")
+            self.set_mode(MANUAL_ACTION_MODES[action], "failsafe")
             dyn.command_velocity((0.0, 0.0, self.params.position_no_rc_descent_mps), immediate=True)
         else:
             self.disarm("Disarmed by failsafe")
 
     def gps_loss(self, duration_s: float) -> bool:
         """No GPS for ``duration_s`` (extends a loss under way); True when it starts now."""
-        t = self.dyn.time_ns
-        started = self._gps_down_until_ns is None
-        if started:
-            self._gps_down_since_ns = t
-            self._gps_failsafe_done = False
-            self.dyn.estimate_model.set_gps(False)
-        self._gps_down_until_ns = t + int(round(duration_s * 1e9))
-        return started
+        return self.gps.loss(duration_s)
 
     def set_battery(self, fraction: float) -> None:
         """The remaining battery (0..1); the levels already handled above it are forgotten."""
-        self.battery = float(fraction)
-        self._battery_level = min(self._battery_level, self._battery_level_of(self.battery))
+        self.power.set(fraction)
 
     def climbing_from_ground(self) -> None:
         if not self.in_air:
@@ -492,10 +380,10 @@ class Autopilot:
     # ------------------------------------------------------------------------------------------
     def on_step(self, dyn: MulticopterDynamics) -> None:
         t = dyn.time_ns
-        self._gps_step(t)
-        self._battery_step()
+        self.gps.step(t)
+        self.power.step()
         if self.armed:
-            self._land_detector(t)
+            self.land_detector.step(t)
         if self.armed:
             mode = self.mode
             if mode == FlightMode.TAKEOFF:
@@ -517,50 +405,7 @@ class Autopilot:
                     self.set_mode(FlightMode.LAND, "failsafe")
                     dyn.command_land(immediate=True)
 
-    def _gps_step(self, t: int) -> None:
-        if self._gps_down_until_ns is None:
-            return
-        if t >= self._gps_down_until_ns:
-            self._gps_down_until_ns = None
-            self.dyn.estimate_model.set_gps(True)
-            self.listener.on_gps(True)
-        elif (not self._gps_failsafe_done
-              and t - self._gps_down_since_ns >= self.params.gps_loss_failsafe_delay_s * 1e9):
-            self._gps_failsafe_done = True
-            if self.armed and self.in_air and self.mode in POSITION_MODES:
-                if self.params.gps_failsafe_text:
-                    self.status(self.params.gps_failsafe_text, "critical")
-                self.failsafe("No valid position estimate (GPS lost)", self.params.gps_loss_action)
-
-    def _battery_level_of(self, fraction: float) -> int:
-        p = self.params
-        if fraction <= p.battery_emergency_fraction:
-            return 3
-        if fraction <= p.battery_critical_fraction:
-            return 2
-        return int(p.battery_low_fraction is not None and fraction <= p.battery_low_fraction)
-
-    def _battery_step(self) -> None:
-        dyn, p = self.dyn, self.params
-        if dyn.motors_on and (p.battery_drain_on_ground or self.in_air):
-            self.battery = max(0.0, self.battery - p.battery_drain_per_s * dyn.dt_s)
-        flying = self.armed and self.in_air
-        if p.battery_check_in_flight_only and not flying:
-            return
-        level = self._battery_level_of(self.battery)
-        if level <= self._battery_level:
-            return
-        self._battery_level = level
-        if p.battery_warnings:
-            self.status(f"{_BATTERY_NAMES[level]} battery level", "warning")
-        if not flying:
-            return
-        if level == 3 and p.battery_emergency_action is not None:
-            self.failsafe("Battery level emergency", p.battery_emergency_action)
-        elif level >= 2 and p.battery_critical_action is not None:
-            self.failsafe("Battery level critical", p.battery_critical_action)
-
-    def _climbing(self) -> bool:
+    def climbing(self) -> bool:
         """What PX4 must not auto-disarm in (the emulator's rule)."""
         if self.mode == FlightMode.TAKEOFF:
             return True
@@ -568,32 +413,6 @@ class Autopilot:
             return self.mission.climbing()
         return (self.mode == FlightMode.OFFBOARD and self.setpoint is not None
                 and self.setpoint.down_m < -0.3)
-
-    def _land_detector(self, t: int) -> None:
-        dyn, p = self.dyn, self.params
-        if not dyn.on_ground and -dyn.pd >= p.in_air_altitude_m and not self.in_air:
-            self.in_air = True
-            self._flew_since_arm = True
-            self._ground_since_ns = None
-            self.status("Takeoff detected")
-        if dyn.on_ground:
-            if self._ground_since_ns is None:
-                self._ground_since_ns = t
-            if self.in_air and t - self._ground_since_ns >= p.land_detect_s * 1e9:
-                self.in_air = False
-                self._landed_ns = t
-                self.status("Landing detected")
-        else:
-            self._ground_since_ns = None
-        spared = p.auto_disarm_spares_climb and self._climbing()
-        if (self._landed_ns is not None and not self.in_air and not spared
-                and t - self._landed_ns >= p.auto_disarm_after_land_s * 1e9):
-            self._landed_ns = None
-            self.disarm("Disarmed by landing")
-        elif (p.auto_disarm_preflight_s is not None and not self._flew_since_arm and dyn.on_ground
-              and not (spared if p.auto_disarm_spares_climb else self.mode in _PREFLIGHT_EXEMPT)
-              and t - self._armed_ns >= p.auto_disarm_preflight_s * 1e9):
-            self.disarm(p.preflight_disarm_text)
 
     def _step_takeoff(self, t: int) -> None:
         if t < self._takeoff_go_ns:

@@ -13,13 +13,13 @@ from eaglemission.drivers.vehicles.events import EVENT_FAULT, EVENT_LINK
 from eaglemission.types import FlightMode, VehicleState
 
 if TYPE_CHECKING:  # the vehicle owns its faults; imported for the annotations only
-    from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+    from eaglemission.drivers.vehicles.simulated_engine import SimulatedModel
 
 COMMANDS = frozenset({
     "arm", "disarm", "takeoff", "goto", "upload_mission", "start_mission", "start_offboard",
     "set_setpoint", "stop_offboard", "hold", "land", "return_to_launch", "grab", "release",
 })
-"""Names accepted by :meth:`SimulatedVehicle.deny_next_command`."""
+"""Names accepted by ``SimulatedVehicle.deny_next_command``."""
 
 
 def _check_duration(duration_s: float, origin: str) -> None:
@@ -28,9 +28,9 @@ def _check_duration(duration_s: float, origin: str) -> None:
 
 
 class SimulatedFaults:
-    """The faults of one :class:`SimulatedVehicle` (its methods of the same names call these)."""
+    """The faults of one :class:`SimulatedModel` (its methods of the same names call these)."""
 
-    def __init__(self, vehicle: SimulatedVehicle) -> None:
+    def __init__(self, vehicle: SimulatedModel) -> None:
         self._v = vehicle
         self._link_down_until_ns: int | None = None
         self._link_down_since_ns = 0
