@@ -230,7 +230,7 @@ class Autopilot:
 
     def upload_mission(self, items: tuple[MissionItem, ...]) -> None:
         self.mission.load(items)
-        if self.mode == FlightMode.MISSION:
+        if self.mode == FlightMode.MISSION and items:
             self.mission.start_logic()
 
     def store_setpoint(self, setpoint: Setpoint) -> None:
