@@ -49,7 +49,7 @@ from eaglemission.drivers.vehicles.autopilot import (
     LandedState,
     ModeSource,
 )
-from eaglemission.drivers.vehicles.dynamics import MulticopterDynamics, _Normals
+from eaglemission.drivers.vehicles.dynamics import MulticopterDynamics, Normals
 from eaglemission.drivers.vehicles.emulator_commands import CommandHandlers
 from eaglemission.drivers.vehicles.emulator_config import (
     DISTANCE_NO_RETURN_CM,
@@ -198,7 +198,7 @@ class Px4Emulator:
         self._statustext_id = 0
         self.last_reached_send = -math.inf
         self.heartbeat_due = False
-        self._rf_noise = _Normals(np.random.default_rng(
+        self._rf_noise = Normals(np.random.default_rng(
             np.random.SeedSequence([cfg.seed, 0x52F])))  # the simulated vehicle's stream
         self._rangefinder_lost_until = -1.0
 

@@ -20,7 +20,7 @@ from eaglemission.drivers.vehicles.autopilot import (
 )
 from eaglemission.drivers.vehicles.dynamics import (
     MulticopterDynamics,
-    _Normals,
+    Normals,
     speeds_within_envelope,
 )
 from eaglemission.drivers.vehicles.events import (
@@ -117,7 +117,7 @@ class SimulatedModel:
         self._connected = False
         self._closed = False
         self._history = TelemetryHistory(span_s=cfg.history_span_s)
-        self._rangefinder_noise = _Normals(np.random.default_rng(
+        self._rangefinder_noise = Normals(np.random.default_rng(
             np.random.SeedSequence([self.seed, 0x52F])))
         self._events: list[VehicleEvent] = []
         self._waypoints: tuple[Waypoint, ...] = ()
