@@ -253,7 +253,7 @@ class SyntheticWorld:
             m1, m2 = cv2.initUndistortRectifyMap(K_true, model.dist_array, None, K_true,
                                                  (model.width_px, model.height_px),
                                                  cv2.CV_32FC1)
-            maps = (m1, m2)
+            maps = (np.asarray(m1, dtype=np.float32), np.asarray(m2, dtype=np.float32))
         ctx = _CameraCtx(K_true, R_bo, true_model, noise_pos, noise_neg, maps, pad)
         with self._lock:
             self._ctx[key] = ctx
@@ -310,8 +310,9 @@ class SyntheticWorld:
         if gain != 1.0:
             cv2.convertScaleAbs(img, dst=img, alpha=gain)
         if ctx.undistort_maps is not None:
-            img = cv2.remap(img, ctx.undistort_maps[0], ctx.undistort_maps[1], cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE)
+            img = np.asarray(cv2.remap(img, ctx.undistort_maps[0], ctx.undistort_maps[1],
+                                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+                             dtype=np.uint8)
         if ctx.noise_pos is not None and ctx.noise_neg is not None:
             h = zlib.crc32(f"{model.camera_id}/{int(timestamp_ns)}".encode()) ^ self.seed
             oy, ox = (h % ctx.noise_pad), ((h // ctx.noise_pad) % ctx.noise_pad)

@@ -122,7 +122,7 @@ class SceneObject:
 def distractor_object(i: int, d: DistractorConfig, seed: int) -> SceneObject:
     rng = seed_rng(seed, "distractor", str(i))
     yaw = float(rng.uniform(-180.0, 180.0))
-    colour = tuple(int(c) for c in d.color_bgr)
+    colour = (int(d.color_bgr[0]), int(d.color_bgr[1]), int(d.color_bgr[2]))
     if d.kind in ("box", "moving_box"):
         faces = box_faces(d.size_m, d.size_m, d.height_m)
         down = -d.height_m

@@ -223,7 +223,7 @@ class GroundRenderer:
         src = self.textures.base[level]
         arr = None
         if src.nbytes * 4 // 3 <= BGRA_LEVEL_BUDGET_BYTES:
-            arr = cv2.cvtColor(src, cv2.COLOR_BGR2BGRA)
+            arr = np.asarray(cv2.cvtColor(src, cv2.COLOR_BGR2BGRA), dtype=np.uint8)
             arr.flags.writeable = False
         with self._lock:
             self.bgra[level] = arr
