@@ -380,7 +380,8 @@ class Autopilot:
     # ------------------------------------------------------------------------------------------
     def on_step(self, dyn: MulticopterDynamics) -> None:
         t = dyn.time_ns
-        self.gps.step(t)
+        if not self.gps.ok:
+            self.gps.step(t)
         self.power.step()
         if self.armed:
             self.land_detector.step(t)

@@ -266,10 +266,13 @@ class SimulatedModel:
     def _on_step(self, dyn: MulticopterDynamics) -> None:
         """After every internal step: the injected faults, the autopilot, the logs."""
         t = dyn.time_ns
-        self.faults.on_step(t)
-        ap = self.autopilot
+        faults = self.faults
+        if faults.link_down:
+            faults.on_step(t)
+        ap = self._ap
+        assert ap is not None  # built with the dynamics
         ap.on_step(dyn)
-        self._log_truth(dyn)
+        self._truth.append(dyn, armed=ap.armed, in_air=ap.land_detector.in_air, mode=ap.mode)
         if t >= self._next_tel_ns:
             self._next_tel_ns = t + self._tel_period_ns
             if not self.faults.link_down:
