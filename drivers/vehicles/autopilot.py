@@ -4,7 +4,9 @@ It sits on :class:`~eaglemission.drivers.vehicles.dynamics.MulticopterDynamics` 
 PX4 v1.16 decides (recorded in ``../shared/data/px4_sitl_tlogs``): flight modes and their entry
 actions, arming, the land detector and auto-disarm, takeoff (spool-up, climb-rate ramp),
 hold / goto, land, RTL (climb, return, land), missions (:mod:`.autopilot_mission`), offboard
-setpoints and the offboard-loss failsafe, and the GPS, battery and data-link failsafes.
+setpoints and the offboard-loss failsafe, the GPS and battery failsafes, and one
+:meth:`Autopilot.failsafe` for every cause (the drivers detect a lost data link their own way
+and call it).
 
 Time is the model's: :meth:`Autopilot.on_step` runs after every internal step of the dynamics
 (``dyn.advance_to(t, autopilot.on_step)``), so the simulated vehicle steps it lazily on its
@@ -14,8 +16,9 @@ autopilot says (status texts, mode changes, failsafes, mission items) goes to an
 s of it, the emulator STATUSTEXT, HEARTBEAT and MISSION_* messages.
 
 The two vehicles differed in details before they shared this model; :class:`AutopilotParams`
-keeps each one's behaviour where it was observable (``SIMULATED`` / ``EMULATED`` columns of its
-docstring), so that aligning both with the recordings is a change of parameters here.
+keeps each one's behaviour where it was observable (its fields say what each vehicle sets;
+docs/vehicles.md has the table next to the recorded PX4), so that aligning both with the
+recordings is a change of parameters.
 
 Commands from the client (``source="command"``) take effect after the model's command latency;
 the autopilot's own decisions (mode logic, failsafes, a pilot) are immediate and drop the

@@ -31,8 +31,8 @@ class FailsafeAction(enum.StrEnum):
 
 
 MANUAL_ACTION_MODES = {FailsafeAction.POSITION: FlightMode.POSCTL,
-                        FailsafeAction.ALTITUDE: FlightMode.ALTCTL,
-                        FailsafeAction.MANUAL: FlightMode.MANUAL}
+                       FailsafeAction.ALTITUDE: FlightMode.ALTCTL,
+                       FailsafeAction.MANUAL: FlightMode.MANUAL}
 
 
 class LandedState(enum.IntEnum):
@@ -60,8 +60,8 @@ class AutopilotParams:
 
     Where the simulated vehicle and the emulator behaved differently before they shared this
     model, a parameter keeps each one's behaviour; the value each sets is given as
-    ``sim`` / ``emu`` (built by ``simulated.autopilot_params`` and the emulator's
-    ``Px4Emulator.autopilot_params``).
+    ``sim`` / ``emu`` (built by ``simulated_config.autopilot_params`` and
+    ``emulator_config.emulator_autopilot_params``; docs/vehicles.md has the table).
     """
 
     home_altitude_amsl_m: float = 489.4
