@@ -31,6 +31,7 @@ raising ``CameraLost`` at once while waiting: never a hang.
 from __future__ import annotations
 
 import glob
+import importlib
 import logging
 import math
 import os
@@ -59,12 +60,16 @@ _BAYER = {"BayerRG": cv2.COLOR_BayerBG2BGR, "BayerBG": cv2.COLOR_BayerRG2BGR,
           "BayerGR": cv2.COLOR_BayerGB2BGR, "BayerGB": cv2.COLOR_BayerGR2BGR}
 
 
+def _u8(img: Any) -> NDArray[np.uint8]:
+    """An OpenCV result as the uint8 array it is (no copy)."""
+    return np.asarray(img, dtype=np.uint8)
+
+
 def _import_harvesters() -> Any:
-    try:
-        from harvesters import core
+    try:  # harvesters ships no type information: imported as a module object
+        return importlib.import_module("harvesters.core")
     except ImportError as exc:
         raise ImportError(f"{INSTALL_HINT} ({exc})") from exc
-    return core
 
 
 # ---------------------------------------------------------------------------------------------
@@ -107,15 +112,15 @@ def to_bgr(data: NDArray[Any], width: int, height: int, pixel_format: str) -> ND
         code = _BAYER.get(fmt[:7])
         if code is None:
             raise FrameError("UNSUPPORTED_FORMAT", "to_bgr", fmt, "unknown Bayer pattern")
-        return cv2.cvtColor(arr, code)
+        return _u8(cv2.cvtColor(arr, code))
     if channels == 1:
-        return cv2.cvtColor(arr, cv2.COLOR_GRAY2BGR)
+        return _u8(cv2.cvtColor(arr, cv2.COLOR_GRAY2BGR))
     if fmt.startswith(("RGBa", "RGBA")):
-        return cv2.cvtColor(arr, cv2.COLOR_RGBA2BGR)
+        return _u8(cv2.cvtColor(arr, cv2.COLOR_RGBA2BGR))
     if fmt.startswith(("BGRa", "BGRA")):
-        return cv2.cvtColor(arr, cv2.COLOR_BGRA2BGR)
+        return _u8(cv2.cvtColor(arr, cv2.COLOR_BGRA2BGR))
     if fmt.startswith("RGB"):
-        return cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
+        return _u8(cv2.cvtColor(arr, cv2.COLOR_RGB2BGR))
     return np.array(arr, dtype=np.uint8, copy=True)
 
 
@@ -414,10 +419,10 @@ class GenICamCamera:
     def _teardown(self) -> None:
         ia, h = self._ia, self._h
         self._ia = self._h = None
-        for fn in ((lambda: ia.stop()), (lambda: ia.destroy())):
+        for step in ("stop", "destroy"):
             try:
                 if ia is not None:
-                    fn()
+                    getattr(ia, step)()
             except Exception:  # tearing down a lost device: errors are expected
                 log.debug("camera %r: teardown step failed", self.camera_id, exc_info=True)
         if h is not None:

@@ -34,6 +34,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.clock import Clock
@@ -222,7 +223,7 @@ class ReplayCamera:
         if wait > 0:
             time.sleep(wait)
 
-    def _check(self, img: np.ndarray | None, what: str) -> np.ndarray:
+    def _check(self, img: NDArray[Any] | None, what: str) -> NDArray[np.uint8]:
         if img is None or img.size == 0:
             self.stats["frame_errors"] += 1
             raise FrameError("CORRUPT_FRAME", f"camera {self.camera_id!r}.grab()", None,
@@ -234,7 +235,7 @@ class ReplayCamera:
                              f"{what}: {img.shape[1]}x{img.shape[0]} px but the camera model "
                              f"is {self.model.width_px}x{self.model.height_px}: fix "
                              "resolution_px or set params.check_size: false")
-        return img
+        return np.asarray(img, dtype=np.uint8)
 
     def _end(self) -> None:
         raise EndOfStream(self.camera_id, self._served)

@@ -22,6 +22,7 @@ generating it in seconds. Files are written atomically and keyed by every parame
 from __future__ import annotations
 
 import functools
+import importlib
 import logging
 import math
 import os
@@ -29,14 +30,19 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import Literal
 
 import cv2
 import numpy as np
-import scipy.fft
 from numpy.typing import NDArray
 
 log = logging.getLogger(__name__)
+
+
+def _scipy_fft() -> ModuleType:
+    """``scipy.fft`` (scipy ships no type stubs: imported as a module object)."""
+    return importlib.import_module("scipy.fft")
 
 TEXTURE_VERSION = 1  # bump when the generators change: invalidates the disk cache
 
@@ -90,7 +96,7 @@ def periodic_bandpass_noise(size: int, min_wavelength_px: float, max_wavelength_
     domain, normalised to zero mean and std 1. ``anisotropy`` > 1 stretches it along
     ``angle_rad`` (grass blades)."""
     white = rng.standard_normal((size, size)).astype(np.float32)
-    spec = scipy.fft.rfft2(white)  # complex64 for float32 input
+    spec = _scipy_fft().rfft2(white)  # complex64 for float32 input
     fy = np.fft.fftfreq(size).astype(np.float32)[:, None]
     fx = np.fft.rfftfreq(size).astype(np.float32)[None, :]
     c, s = math.cos(angle_rad), math.sin(angle_rad)
@@ -101,7 +107,8 @@ def periodic_bandpass_noise(size: int, min_wavelength_px: float, max_wavelength_
     # Smooth band (pink-ish inside the band, soft edges).
     band = np.clip((f - lo * 0.7) / (lo * 0.3 + 1e-9), 0, 1) * np.clip((hi - f) / (hi * 0.3), 0, 1)
     amp = band / np.maximum(f, lo) ** 0.5
-    out = scipy.fft.irfft2(spec * amp.astype(np.float32), s=(size, size)).astype(np.float32)
+    out = np.asarray(_scipy_fft().irfft2(spec * amp.astype(np.float32), s=(size, size)),
+                     dtype=np.float32)
     out -= out.mean()
     out /= float(out.std()) or 1.0
     return out
@@ -109,7 +116,7 @@ def periodic_bandpass_noise(size: int, min_wavelength_px: float, max_wavelength_
 
 def _smoothstep(x: F32, lo: float, hi: float) -> F32:
     t = np.clip((x - lo) / (hi - lo), 0.0, 1.0)
-    return (t * t * (3.0 - 2.0 * t)).astype(np.float32)
+    return np.asarray(t * t * (3.0 - 2.0 * t), dtype=np.float32)
 
 
 def _mix(a: F32, b: F32, t: F32) -> F32:
@@ -221,7 +228,8 @@ def mip_pyramid(img: NDArray[np.uint8], min_size_px: int = 32) -> list[NDArray[n
     while min(levels[-1].shape[:2]) >= 2 * min_size_px:
         prev = levels[-1]
         h, w = prev.shape[0] // 2, prev.shape[1] // 2
-        levels.append(cv2.resize(prev[: 2 * h, : 2 * w], (w, h), interpolation=cv2.INTER_AREA))
+        levels.append(np.asarray(cv2.resize(prev[: 2 * h, : 2 * w], (w, h),
+                                            interpolation=cv2.INTER_AREA), dtype=np.uint8))
     return levels
 
 
@@ -247,7 +255,7 @@ class GroundTextures:
 
     @property
     def extent_m(self) -> float:
-        return self.base[0].shape[0] * self.base_texel_m
+        return float(self.base[0].shape[0] * self.base_texel_m)
 
     @property
     def nbytes(self) -> int:
@@ -327,7 +335,8 @@ def ground_textures(kind: str, seed: int, extent_m: float, base_texel_m: float =
         t = np.tile(lvl, (reps, reps))
         t.flags.writeable = False
         tiled.append(t)
-        lvl = cv2.resize(lvl, (lvl.shape[1] // 2, lvl.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        lvl = np.asarray(cv2.resize(lvl, (lvl.shape[1] // 2, lvl.shape[0] // 2),
+                                    interpolation=cv2.INTER_AREA), dtype=np.uint8)
     mean = tuple(float(v) for v in base_levels[-1].reshape(-1, 3).mean(axis=0))
     half = size * base_texel_m / 2.0
     return GroundTextures(kind, tuple(base_levels), base_texel_m, half, -half,

@@ -16,9 +16,13 @@ import argparse
 import signal
 import threading
 import time
+from typing import TYPE_CHECKING
 
 from eaglemission.commands import Command
 from eaglemission.errors import ConfigError
+
+if TYPE_CHECKING:  # the emulator (pymavlink) is imported when the command runs
+    from eaglemission.drivers.vehicles.emulator_config import EmulatorSnapshot
 
 
 def _add(p: argparse.ArgumentParser) -> None:
@@ -77,7 +81,7 @@ def _run(args: argparse.Namespace) -> int:
         kw["rangefinder"] = ({**rf, "enabled": True} if isinstance(rf, dict)
                              else {"enabled": True})
     try:
-        cfg = EmulatorConfig(**kw)  # type: ignore[arg-type]
+        cfg = EmulatorConfig.model_validate(kw)
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
     stop = threading.Event()
@@ -131,13 +135,13 @@ def emulator_settings_from_mission(path: str) -> dict[str, object]:
     return out
 
 
-def write_status(path: str, snap: object) -> None:
+def write_status(path: str, snap: EmulatorSnapshot) -> None:
     """The emulator's snapshot as JSON, replaced atomically."""
     import dataclasses
     import json
     import os
 
-    d = dataclasses.asdict(snap)  # type: ignore[call-overload]
+    d = dataclasses.asdict(snap)
     d["mode"] = getattr(d["mode"], "value", str(d["mode"]))
     d["wall_time_s"] = time.time()
     tmp = f"{path}.tmp"

@@ -39,12 +39,26 @@ from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import numpy as np
+from eaglemission.drivers.vehicles.kinematics import (
+    GRAVITY_MPS2,
+    attitude_from_acceleration,
+    stopping_point,
+    wrap_deg,
+)
+from eaglemission.drivers.vehicles.sensors import (
+    EstimateModel,
+    Normals,
+    RangefinderParams,
+    rangefinder_reading_m,
+)
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.types import XYZ, Quat, Setpoint
 
-GRAVITY_MPS2 = 9.80665
-SMOOTHING_TIME_S = 1.0  # low-pass of the estimate error (EKF output is smooth)
+__all__ = ["GRAVITY_MPS2", "DynamicsParams", "EstimateModel", "KinematicState",
+           "MulticopterDynamics", "Normals", "RangefinderParams", "attitude_from_acceleration",
+           "rangefinder_reading_m", "speeds_within_envelope", "stopping_point", "wrap_deg"]
+
 LIFTOFF_ACCEL_MPS2 = 0.5  # upward thrust excess needed to leave the ground
 ESTIMATE_DECIMATION = 4  # the estimate error is updated every 4th internal step
 
@@ -98,222 +112,6 @@ def speeds_within_envelope(params: DynamicsParams, safety: Any) -> DynamicsParam
                "max_up_speed_mps": min(3.0, 0.9 * v), "max_down_speed_mps": min(1.5, 0.9 * v)}
     update = {k: val for k, val in derived.items() if k not in given}
     return params.model_copy(update=update) if update else params
-
-
-# ---------------------------------------------------------------------------------------------
-# Pure helpers
-# ---------------------------------------------------------------------------------------------
-def wrap_deg(angle_deg: float) -> float:
-    """Wrap to [-180, 180) (same as :func:`eaglemission.geometry.wrap_deg`, kept local so the
-    model has no OpenCV import)."""
-    return (angle_deg + 180.0) % 360.0 - 180.0
-
-
-def tilt_from_acceleration_deg(horizontal_accel_mps2: float) -> float:
-    """Tilt of the thrust axis from the vertical needed to accelerate horizontally at ``a``
-    in hover: ``atan(a / g)``."""
-    return math.degrees(math.atan2(abs(horizontal_accel_mps2), GRAVITY_MPS2))
-
-
-def attitude_from_acceleration(accel_ned_mps2: XYZ, yaw_deg: float) -> Quat:
-    """Body FRD -> NED quaternion ``(w, x, y, z)`` of a multicopter whose thrust produces the
-    (gravity-compensated) acceleration ``accel_ned_mps2`` with heading ``yaw_deg``.
-
-    The body z axis (down) is opposite to the specific thrust ``a - g``; the body x axis is the
-    heading direction projected onto the plane normal to z. Braking while flying north
-    (``a_n < 0``) pitches the nose up.
-    """
-    tn, te, td = accel_ned_mps2[0], accel_ned_mps2[1], accel_ned_mps2[2] - GRAVITY_MPS2
-    norm = math.sqrt(tn * tn + te * te + td * td)
-    if norm < 1e-6:  # free fall / motors off: report level
-        tn, te, td, norm = 0.0, 0.0, -1.0, 1.0
-    zx, zy, zz = -tn / norm, -te / norm, -td / norm
-    yaw = math.radians(yaw_deg)
-    cx, cy = math.cos(yaw), math.sin(yaw)
-    # y_b = z_b x x_c, with x_c = (cos yaw, sin yaw, 0)
-    yx, yy, yz = -zz * cy, zz * cx, zx * cy - zy * cx
-    yn = math.sqrt(yx * yx + yy * yy + yz * yz)
-    yx, yy, yz = yx / yn, yy / yn, yz / yn
-    # x_b = y_b x z_b
-    xx, xy, xz = yy * zz - yz * zy, yz * zx - yx * zz, yx * zy - yy * zx
-    # R columns are x_b, y_b, z_b (body -> NED)
-    r00, r01, r02 = xx, yx, zx
-    r10, r11, r12 = xy, yy, zy
-    r20, r21, r22 = xz, yz, zz
-    tr = r00 + r11 + r22
-    if tr > 0.0:
-        s = math.sqrt(tr + 1.0) * 2.0
-        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
-    elif r00 > r11 and r00 > r22:
-        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
-        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
-    elif r11 > r22:
-        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
-        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
-    else:
-        s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
-        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if w < 0.0:
-        n = -n
-    return (w / n, x / n, y / n, z / n)
-
-
-def stopping_point(position: XYZ, velocity: XYZ, accel_mps2: float) -> XYZ:
-    """Where a vehicle braking at ``accel_mps2`` comes to rest: ``p + v |v| / (2 a)``."""
-    out = []
-    for p, v in zip(position, velocity):
-        out.append(p + v * abs(v) / (2.0 * accel_mps2))
-    return (out[0], out[1], out[2])
-
-
-def braking_distance_m(speed_mps: float, accel_mps2: float) -> float:
-    """``v^2 / (2 a)``."""
-    return speed_mps * speed_mps / (2.0 * accel_mps2)
-
-
-# ---------------------------------------------------------------------------------------------
-# Estimate
-# ---------------------------------------------------------------------------------------------
-class _Normals:
-    """Seeded standard normals drawn in blocks (a numpy call per sample would dominate)."""
-
-    def __init__(self, rng: np.random.Generator, block: int = 4096) -> None:
-        self._rng = rng
-        self._block = block
-        self._buf: list[float] = []
-        self._i = 0
-
-    def next(self) -> float:
-        if self._i >= len(self._buf):
-            self._buf = self._rng.standard_normal(self._block).tolist()
-            self._i = 0
-        v = self._buf[self._i]
-        self._i += 1
-        return v
-
-
-class EstimateModel:
-    """The autopilot's position estimate error: ``estimate = truth + error``.
-
-    With GPS the error is an Ornstein-Uhlenbeck process per axis (stationary std
-    ``horizontal_std_m`` / ``vertical_std_m``, correlation time ``correlation_time_s``),
-    clipped to ``max_error_m`` (EKF innovation gating); it starts at a random draw (home and
-    the EKF origin differ by decimetres on real PX4). Without GPS it drifts linearly at
-    ``gps_loss_drift_mps`` in a seeded random direction; when GPS returns it resets onto the
-    underlying process (an EKF position reset).
-    """
-
-    def __init__(
-        self,
-        *,
-        seed: int,
-        horizontal_std_m: float = 0.08,
-        vertical_std_m: float = 0.04,
-        correlation_time_s: float = 30.0,
-        max_error_m: float = 0.3,
-        gps_loss_drift_mps: float = 0.3,
-    ) -> None:
-        if correlation_time_s <= 0:
-            raise ValueError(f"correlation_time_s: must be > 0, got {correlation_time_s}")
-        self.horizontal_std_m = float(horizontal_std_m)
-        self.vertical_std_m = float(vertical_std_m)
-        self.correlation_time_s = float(correlation_time_s)
-        self.max_error_m = float(max_error_m)
-        self.gps_loss_drift_mps = float(gps_loss_drift_mps)
-        self._normals = _Normals(np.random.default_rng(np.random.SeedSequence([int(seed), 0xE5])))
-        stds = (self.horizontal_std_m, self.horizontal_std_m, self.vertical_std_m)
-        self._ou = [self._clip(s * self._normals.next()) for s in stds]
-        self._smooth = list(self._ou)  # low-passed: an EKF estimate does not jitter
-        self._drift = [0.0, 0.0, 0.0]
-        self._drift_v = (0.0, 0.0, 0.0)
-        self.gps_ok = True
-        self._cached_dt = -1.0
-        self._a = 1.0
-        self._b = 0.0
-
-    @classmethod
-    def from_params(cls, params: DynamicsParams, *, seed: int) -> EstimateModel:
-        return cls(
-            seed=seed,
-            horizontal_std_m=params.estimate_horizontal_std_m,
-            vertical_std_m=params.estimate_vertical_std_m,
-            correlation_time_s=params.estimate_correlation_time_s,
-            max_error_m=params.estimate_max_error_m,
-            gps_loss_drift_mps=params.gps_loss_drift_mps,
-        )
-
-    def _clip(self, v: float) -> float:
-        m = self.max_error_m
-        return -m if v < -m else (m if v > m else v)
-
-    @property
-    def error_ned_m(self) -> XYZ:
-        o, d = self._smooth, self._drift
-        return (o[0] + d[0], o[1] + d[1], o[2] + d[2])
-
-    def set_gps(self, ok: bool) -> None:
-        """GPS lost (``False``): start drifting; regained: reset onto the GPS-aided estimate."""
-        if ok == self.gps_ok:
-            return
-        self.gps_ok = ok
-        if not ok:
-            ang = math.pi * (1.0 + self._normals.next() * 0.5)
-            v = self.gps_loss_drift_mps
-            self._drift_v = (v * math.cos(ang), v * math.sin(ang), 0.1 * v * self._normals.next())
-        else:
-            self._drift = [0.0, 0.0, 0.0]
-            self._drift_v = (0.0, 0.0, 0.0)
-            self._smooth = list(self._ou)
-
-    def step(self, dt_s: float) -> None:
-        if dt_s != self._cached_dt:
-            self._cached_dt = dt_s
-            self._a = math.exp(-dt_s / self.correlation_time_s)
-            self._b = math.sqrt(max(0.0, 1.0 - self._a * self._a))
-        a, b = self._a, self._b
-        o = self._ou
-        nx = self._normals.next
-        o[0] = self._clip(a * o[0] + b * self.horizontal_std_m * nx())
-        o[1] = self._clip(a * o[1] + b * self.horizontal_std_m * nx())
-        o[2] = self._clip(a * o[2] + b * self.vertical_std_m * nx())
-        f = self._smooth
-        k = min(1.0, dt_s / SMOOTHING_TIME_S)
-        f[0] += (o[0] - f[0]) * k
-        f[1] += (o[1] - f[1]) * k
-        f[2] += (o[2] - f[2]) * k
-        if not self.gps_ok:
-            d, v = self._drift, self._drift_v
-            d[0] += v[0] * dt_s
-            d[1] += v[1] * dt_s
-            d[2] += v[2] * dt_s
-
-
-class RangefinderParams(BaseModel):
-    """A downward distance sensor (lidar such as a LightWare or TFmini, PX4 ``DISTANCE_SENSOR``)
-    on the body's down axis at the body origin, over flat ground at home's height (the target
-    and distractors are not seen by the beam)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    enabled: bool = False
-    noise_std_m: _NonNeg = 0.01
-    min_range_m: _NonNeg = 0.1
-    max_range_m: _Pos = 12.0
-
-
-def rangefinder_reading_m(true_down_m: float, cos_tilt: float, params: RangefinderParams,
-                          noise: float) -> float | None:
-    """Range along the body's down axis to flat ground at ``down = 0`` for a body origin at
-    ``true_down_m`` (NED, negative above ground) whose down axis makes ``acos(cos_tilt)`` with
-    the vertical; ``noise`` is a standard normal draw. None when disabled, pointing at or
-    above the horizon, or outside the sensor's range."""
-    if not params.enabled or cos_tilt <= 0.1:
-        return None
-    r = -true_down_m / cos_tilt
-    if not params.min_range_m <= r <= params.max_range_m:
-        return None
-    return r + params.noise_std_m * noise
 
 
 # ---------------------------------------------------------------------------------------------
@@ -439,7 +237,7 @@ class MulticopterDynamics:
         self._target_ns = self.time_ns  # time asked for (may lie between steps)
         self.estimate_model = estimate or EstimateModel.from_params(p, seed=seed)
         self.wind_ne_mps = (float(wind_ne_mps[0]), float(wind_ne_mps[1]))
-        self._gust_normals = _Normals(np.random.default_rng(np.random.SeedSequence([int(seed), 0x61])))
+        self._gust_normals = Normals(np.random.default_rng(np.random.SeedSequence([int(seed), 0x61])))
         self._gust = [0.0, 0.0]
         # true state
         self.pn = self.pe = self.pd = 0.0
@@ -536,8 +334,8 @@ class MulticopterDynamics:
     def command_velocity(self, velocity_ned_mps: XYZ, yaw_deg: float | None = None, *,
                          immediate: bool = False) -> None:
         """Track a NED velocity (limited by the params) and, if given, a yaw."""
-        self._issue(_Command("velocity", tuple(float(v) for v in velocity_ned_mps), yaw_deg),  # type: ignore[arg-type]
-                    immediate)
+        v = velocity_ned_mps
+        self._issue(_Command("velocity", (float(v[0]), float(v[1]), float(v[2])), yaw_deg), immediate)
 
     def command_hold(self, *, immediate: bool = False) -> None:
         """Brake and hold the stopping point (PX4 Hold/Loiter)."""

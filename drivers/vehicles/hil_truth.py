@@ -124,14 +124,15 @@ class HilTruth:
             span = t[j] - t[i]
             s = (timestamp_ns - t[i]) / span if span > 0 else 0.0
             c = self._c
-            pos = tuple(c[k][i] + s * (c[k][j] - c[k][i]) for k in range(3))
+            pos = (c[0][i] + s * (c[0][j] - c[0][i]), c[1][i] + s * (c[1][j] - c[1][i]),
+                   c[2][i] + s * (c[2][j] - c[2][i]))
             qa = [c[k][i] for k in range(6, 10)]
             qb = [c[k][j] for k in range(6, 10)]
         if sum(a * b for a, b in zip(qa, qb)) < 0:
             qb = [-v for v in qb]
         q = [a + s * (b - a) for a, b in zip(qa, qb)]
         n = math.sqrt(sum(v * v for v in q)) or 1.0
-        return pos, (q[0] / n, q[1] / n, q[2] / n, q[3] / n)  # type: ignore[return-value]
+        return pos, (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
     def trajectory(self) -> list[VehicleState]:
         with self._lock:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import eaglemission.drivers.cameras.world as world_mod
+import eaglemission.drivers.cameras.world_ground as ground_mod
 import numpy as np
 from _camera_helpers import looking_at_target
 from eaglemission.drivers.cameras.world import SKY_HORIZON_BGR, SKY_ZENITH_BGR, SyntheticWorld
@@ -18,7 +19,7 @@ def test_four_channel_ground_equals_three_channel(sim_config, target_config, wid
     imgs = [fast.render(m, p, q, 1_000_000_000)[0] for m in (wide_model, narrow_model)
             for p, q in poses]
     assert any(v is not None for v in fast._bgra.values())  # the 4-channel path was used
-    monkeypatch.setattr(world_mod, "BGRA_LEVEL_BUDGET_BYTES", 0)
+    monkeypatch.setattr(ground_mod, "BGRA_LEVEL_BUDGET_BYTES", 0)
     slow = SyntheticWorld(sim_config, target_config, extent_m=60.0)
     ref = [slow.render(m, p, q, 1_000_000_000)[0] for m in (wide_model, narrow_model)
            for p, q in poses]
