@@ -3,7 +3,7 @@
 The same arithmetic as the numpy reference path ``_rpnp_numpy`` in rpnp.py (tests compare the
 two), without numpy's per-call overhead, which dominates at n = 4. Compiled on first use and
 cached on disk (``cache=True``). Also the Levenberg-Marquardt loop of
-:func:`~eaglemission.estimators.rpnp.refine_pose` (``refine_pose_core``).
+:func:`~eaglemission.estimators.pnp_refine.refine_pose` (``refine_pose_core``).
 """
 
 from __future__ import annotations
@@ -265,7 +265,7 @@ def rpnp_core(XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int):  # noqa: C901
 
 
 # ---------------------------------------------------------------------------------------------
-# Refinement: rpnp.refine_pose (numpy reference ``refine_pose(..., backend="numpy")``)
+# Refinement: pnp_refine.refine_pose (numpy reference ``refine_pose(..., backend="numpy")``)
 # ---------------------------------------------------------------------------------------------
 @njit(cache=True)
 def _project_residual(R: np.ndarray, t: np.ndarray, X: np.ndarray, m: np.ndarray,
@@ -302,7 +302,7 @@ def _rodrigues_k(w0: float, w1: float, w2: float) -> np.ndarray:
 @njit(cache=True)
 def refine_pose_core(R0: np.ndarray, t0: np.ndarray, X: np.ndarray, m: np.ndarray,
                      max_iterations: int, tol: float):
-    """Levenberg-Marquardt of ``rpnp.refine_pose``: returns (R, t, refined); ``refined``
+    """Levenberg-Marquardt of ``pnp_refine.refine_pose``: returns (R, t, refined); ``refined``
     False means the start pose has a point behind the camera (returned unchanged)."""
     n = X.shape[0]
     R = R0.copy()

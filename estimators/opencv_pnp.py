@@ -12,7 +12,7 @@ from typing import Any, ClassVar, Literal
 
 import cv2
 import numpy as np
-from eaglemission.estimators.rpnp import refine_pose, reprojection_errors
+from eaglemission.estimators.pnp_refine import refine_pose, reprojection_errors
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
