@@ -39,13 +39,16 @@ def _frame_from_axis(x0: float, x1: float, x2: float) -> np.ndarray:
 
 @njit(cache=True)
 def _det3(m: np.ndarray) -> float:
-    return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-            - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    d: float = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+                - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+                + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    return d
 
 
 @njit(cache=True)
-def rpnp_core(XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int):  # noqa: C901
+def rpnp_core(  # noqa: C901
+    XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """Candidates of RPnP for the pair (i1, i2).
 
     Returns (status, Rs (m,3,3), ts (m,3), errs (m,)): status 0 ok, 1 coincident pair,
@@ -301,7 +304,7 @@ def _rodrigues_k(w0: float, w1: float, w2: float) -> np.ndarray:
 
 @njit(cache=True)
 def refine_pose_core(R0: np.ndarray, t0: np.ndarray, X: np.ndarray, m: np.ndarray,
-                     max_iterations: int, tol: float):
+                     max_iterations: int, tol: float) -> tuple[np.ndarray, np.ndarray, bool]:
     """Levenberg-Marquardt of ``pnp_refine.refine_pose``: returns (R, t, refined); ``refined``
     False means the start pose has a point behind the camera (returned unchanged)."""
     n = X.shape[0]

@@ -31,28 +31,31 @@ def reprojection_errors(
     z = Xc[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         proj = Xc[:, :2] / z[:, None]
-        e = np.linalg.norm(proj - normalized_points, axis=1)
+        e: NDArray[np.float64] = np.linalg.norm(proj - normalized_points, axis=1)
     e[~(z > 0)] = np.inf
     return e
 
 
 def _skew_batch(v: NDArray[np.float64]) -> NDArray[np.float64]:
     z = np.zeros(v.shape[0])
-    return np.stack((
+    skew: NDArray[np.float64] = np.stack((
         np.stack((z, -v[:, 2], v[:, 1]), axis=1),
         np.stack((v[:, 2], z, -v[:, 0]), axis=1),
         np.stack((-v[:, 1], v[:, 0], z), axis=1),
     ), axis=1)
+    return skew
 
 
 def _rodrigues(w: NDArray[np.float64]) -> Mat3:
     theta = float(np.linalg.norm(w))
     if theta < 1e-12:
         K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-        return np.eye(3) + K
+        R_small: Mat3 = np.eye(3) + K
+        return R_small
     k = w / theta
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
+    R: Mat3 = np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
+    return R
 
 
 def refine_pose(

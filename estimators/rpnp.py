@@ -28,7 +28,7 @@ References
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import cv2
 import numpy as np
@@ -40,8 +40,12 @@ from eaglemission.estimators.pnp_refine import (
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from eaglemission.interfaces.estimator import CameraView
 from eaglemission.kernels import lazy_kernel
-from eaglemission.types import EstimationFailed, Mat3, PoseEstimate
+from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate
+
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
 
 __all__ = ["rpnp", "refine_pose", "reprojection_errors", "RPnPEstimator", "RPnPConfig"]
 
@@ -178,6 +182,8 @@ def _local_minima(poly7: NDArray[np.float64]) -> NDArray[np.float64]:
     p = poly7[lead[0]:]
     if p.size < 2:
         return np.empty(0)
+    # eigvals gives a real array when every eigenvalue is real
+    roots: NDArray[np.floating[Any]] | NDArray[np.complexfloating[Any, Any]]
     if p.size == 2:
         roots = np.array([-p[1] / p[0]], dtype=np.complex128)
     else:
@@ -190,7 +196,7 @@ def _local_minima(poly7: NDArray[np.float64]) -> NDArray[np.float64]:
         roots = roots[np.abs(roots.imag) / maxreal <= _IMAG_TOL]
     else:
         roots = roots[np.abs(roots.imag) <= _IMAG_TOL]
-    t = roots.real
+    t = np.asarray(roots.real, dtype=np.float64)  # a view of the roots: no copy
     dp = np.polyder(p)
     return t[np.polyval(dp, t) > 0]
 
@@ -454,25 +460,26 @@ class RPnPConfig(BaseModel):
     seed: int = 0
     refine: bool = False
     mbr_correction: Literal["auto", "box_fit", "none"] = Field(
-        "auto", description="MBR model: auto = the better of box silhouette / top face alone; "
+        default="auto", description="MBR model: auto = the better of box silhouette / top face alone; "
                             "box_fit = silhouette; none = MBR corners are the top face (paper)")
     max_reprojection_error_px: float = Field(
-        8.0, gt=0, description="reject poses whose mean corner reprojection error is larger")
+        default=8.0, gt=0, description="reject poses whose mean corner reprojection error is larger")
     previous_pose_weight_px_per_m: float = Field(
-        20.0, ge=0, description="weight of the distance to the previous pose in the corner-order choice")
-    std_m: float = Field(0.05, gt=0, description="reported 1-sigma position uncertainty at 1 m range")
+        default=20.0, ge=0, description="weight of the distance to the previous pose in the corner-order choice")
+    std_m: float = Field(default=0.05, gt=0, description="reported 1-sigma position uncertainty at 1 m range")
 
 
 class RPnPEstimator:
     """Plugin ``rpnp``: target pose from a detection's 4 corners (top face as the model)."""
 
-    Config: ClassVar[type[BaseModel]] = RPnPConfig
+    Config: ClassVar[type[RPnPConfig]] = RPnPConfig
     description: ClassVar[str] = "RPnP (Li, Xu, Xie 2012) on the target's top face from the MBR corners"
 
-    def __init__(self, config: BaseModel | None = None, *, target: Any = None, **context: Any) -> None:
+    def __init__(self, config: RPnPConfig | None = None, *, target: TargetConfig | None = None,
+                 **context: object) -> None:
         from eaglemission.estimators.correspondence import CornerPoseEstimator
 
-        self.config: Any = config if config is not None else RPnPConfig()
+        self.config: RPnPConfig = config if config is not None else RPnPConfig()
         cfg = self.config
         rng = np.random.default_rng(cfg.seed)
 
@@ -488,5 +495,5 @@ class RPnPEstimator:
     def reset(self) -> None:
         self._core.reset()
 
-    def estimate(self, detection: Any, view: Any) -> Any:
+    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
         return self._core.estimate(detection, view)
