@@ -16,8 +16,9 @@ The pure function :func:`rpnp` implements the whole algorithm:
    the smallest mean reprojection error in normalised coordinates.
 
 An optional Levenberg-Marquardt polish on the reprojection error (``refine=True``, from
-:mod:`~eaglemission.estimators.pnp_refine`, shared with the OpenCV solvers) is off by default. :class:`RPnPEstimator` (plugin ``rpnp``) applies it to a detection's four corners with
-the target's top face as the model (see :mod:`eaglemission.estimators.correspondence`).
+:mod:`~eaglemission.estimators.pnp_refine`, shared with the OpenCV solvers) is off by default.
+:class:`RPnPEstimator` (plugin ``rpnp``) applies it to a detection's four corners with the
+target's top face as the model (see :mod:`eaglemission.estimators.correspondence`).
 
 References
 ----------

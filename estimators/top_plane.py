@@ -37,8 +37,9 @@ if TYPE_CHECKING:
 REGIONS = ("top", "box")
 
 
-def box_points_ned(top_ned_m: Sequence[float] | NDArray[np.float64], yaw_deg: float, length_m: float, width_m: float,
-                   height_m: float, region: str) -> NDArray[np.float64]:
+def box_points_ned(top_ned_m: Sequence[float] | NDArray[np.float64], yaw_deg: float,
+                   length_m: float, width_m: float, height_m: float, region: str
+                   ) -> NDArray[np.float64]:
     """Corners of the top face (``region="top"``, 4) or of the whole box (``"box"``, 8)."""
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
     hl, hw = length_m / 2, width_m / 2
