@@ -26,6 +26,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -33,13 +34,16 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from eaglemission.estimators.opencv_pnp import opencv_pnp  # noqa: E402
-from eaglemission.estimators.pnp_synthetic import (  # noqa: E402
+from eaglemission.estimators.rpnp import rpnp  # noqa: E402
+
+# the synthetic protocol is test code (tests/estimators/pnp_synthetic.py)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "estimators"))
+from pnp_synthetic import (  # noqa: E402
     make_case,
     normalized,
     rotation_error_deg,
     translation_error_pct,
 )
-from eaglemission.estimators.rpnp import rpnp  # noqa: E402
 
 F_PX = 800.0
 TARGET_LW = (0.40, 0.25)

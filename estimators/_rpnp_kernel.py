@@ -3,7 +3,7 @@
 The same arithmetic as the numpy reference path ``_rpnp_numpy`` in rpnp.py (tests compare the
 two), without numpy's per-call overhead, which dominates at n = 4. Compiled on first use and
 cached on disk (``cache=True``). Also the Levenberg-Marquardt loop of
-:func:`~eaglemission.estimators.rpnp.refine_pose` (``refine_pose_core``).
+:func:`~eaglemission.estimators.pnp_refine.refine_pose` (``refine_pose_core``).
 """
 
 from __future__ import annotations
@@ -39,13 +39,16 @@ def _frame_from_axis(x0: float, x1: float, x2: float) -> np.ndarray:
 
 @njit(cache=True)
 def _det3(m: np.ndarray) -> float:
-    return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-            - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    d: float = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+                - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+                + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    return d
 
 
 @njit(cache=True)
-def rpnp_core(XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int):  # noqa: C901
+def rpnp_core(  # noqa: C901
+    XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """Candidates of RPnP for the pair (i1, i2).
 
     Returns (status, Rs (m,3,3), ts (m,3), errs (m,)): status 0 ok, 1 coincident pair,
@@ -265,7 +268,7 @@ def rpnp_core(XXw: np.ndarray, xx: np.ndarray, i1: int, i2: int):  # noqa: C901
 
 
 # ---------------------------------------------------------------------------------------------
-# Refinement: rpnp.refine_pose (numpy reference ``refine_pose(..., backend="numpy")``)
+# Refinement: pnp_refine.refine_pose (numpy reference ``refine_pose(..., backend="numpy")``)
 # ---------------------------------------------------------------------------------------------
 @njit(cache=True)
 def _project_residual(R: np.ndarray, t: np.ndarray, X: np.ndarray, m: np.ndarray,
@@ -301,8 +304,8 @@ def _rodrigues_k(w0: float, w1: float, w2: float) -> np.ndarray:
 
 @njit(cache=True)
 def refine_pose_core(R0: np.ndarray, t0: np.ndarray, X: np.ndarray, m: np.ndarray,
-                     max_iterations: int, tol: float):
-    """Levenberg-Marquardt of ``rpnp.refine_pose``: returns (R, t, refined); ``refined``
+                     max_iterations: int, tol: float) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Levenberg-Marquardt of ``pnp_refine.refine_pose``: returns (R, t, refined); ``refined``
     False means the start pose has a point behind the camera (returned unchanged)."""
     n = X.shape[0]
     R = R0.copy()

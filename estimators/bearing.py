@@ -14,14 +14,18 @@ growing with distance, the mid-height plane 0.4-0.6 cm. The default is therefore
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import Pose
+from eaglemission.interfaces.estimator import CameraView
 from eaglemission.types import Detection, EstimationFailed, TargetEstimate
+
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
 
 
 def ground_point_from_pixel(
@@ -42,7 +46,8 @@ def ground_point_from_pixel(
     drop = plane_down_m - float(cam_ned.t[2])
     if drop <= 0:
         return EstimationFailed("bearing: the target plane is not below the camera")
-    return cam_ned.t + (drop / d[2]) * d
+    hit: NDArray[np.float64] = cam_ned.t + (drop / d[2]) * d
+    return hit
 
 
 class BearingConfig(BaseModel):
@@ -50,28 +55,29 @@ class BearingConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    ground_down_m: float = Field(0.0, description="NED down of the ground under the target (home: 0)")
+    ground_down_m: float = Field(default=0.0, description="NED down of the ground under the target (home: 0)")
     plane_height_fraction: float = Field(
-        0.5, ge=0, le=1,
+        default=0.5, ge=0, le=1,
         description="height of the intersection plane as a fraction of the box height: 1 = the "
                     "top face (for a detection centred on the top face), 0.5 = mid-height (the "
                     "centre of a silhouette MBR, what saliency detectors give)")
-    min_depression_deg: float = Field(2.0, ge=0, le=89, description="fail for rays flatter than this")
-    max_range_m: float = Field(80.0, gt=0, description="fail beyond this horizontal distance")
-    angular_std_deg: float = Field(1.0, gt=0, description="attitude+pixel 1-sigma, for std_m")
+    min_depression_deg: float = Field(default=2.0, ge=0, le=89, description="fail for rays flatter than this")
+    max_range_m: float = Field(default=80.0, gt=0, description="fail beyond this horizontal distance")
+    angular_std_deg: float = Field(default=1.0, gt=0, description="attitude+pixel 1-sigma, for std_m")
 
 
 class BearingEstimator:
     """Plugin ``bearing``: detection centre ray intersected with the target's top plane."""
 
-    Config: ClassVar[type[BaseModel]] = BearingConfig
+    Config: ClassVar[type[BearingConfig]] = BearingConfig
     description: ClassVar[str] = "Ray through the detection centre meets the plane of the target's top (N/E metres)"
 
-    def __init__(self, config: BaseModel | None = None, *, target: Any = None, **context: Any) -> None:
-        self.config: Any = config if config is not None else BearingConfig()
+    def __init__(self, config: BearingConfig | None = None, *, target: TargetConfig | None = None,
+                 **context: object) -> None:
+        self.config: BearingConfig = config if config is not None else BearingConfig()
         self.top_height_m = float(getattr(target, "height_m", 0.0) or 0.0)
 
-    def estimate(self, detection: Detection, view: Any) -> TargetEstimate | EstimationFailed:
+    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
         cfg = self.config
         cu, cv = detection.center_px
         if not (math.isfinite(cu) and math.isfinite(cv)):
@@ -94,7 +100,7 @@ class BearingEstimator:
         std = rng * math.radians(cfg.angular_std_deg) / sin_dep
         p_cam = cam.R.T @ (hit - cam.t)
         return TargetEstimate(
-            position_ned_m=tuple(float(v) for v in hit),  # type: ignore[arg-type]
-            position_cam_m=tuple(float(v) for v in p_cam),  # type: ignore[arg-type]
+            position_ned_m=(float(hit[0]), float(hit[1]), float(hit[2])),
+            position_cam_m=(float(p_cam[0]), float(p_cam[1]), float(p_cam[2])),
             timestamp_ns=int(view.timestamp_ns), camera_id=view.model.camera_id,
             source="bearing", full_3d=True, std_m=std)

@@ -36,13 +36,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from eaglemission.geometry import CameraModel, Pose, order_corners, rot_z, wrap_deg
+from eaglemission.geometry import CameraModel, CameraMount, Pose, order_corners, rot_z, wrap_deg
+from eaglemission.interfaces.estimator import CameraView
 from eaglemission.types import (
     Detection,
     EstimationFailed,
@@ -51,6 +52,9 @@ from eaglemission.types import (
     TargetEstimate,
     Vec3,
 )
+
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
 
 Solver = Callable[[NDArray[np.float64], NDArray[np.float64]], PoseEstimate | EstimationFailed]
 
@@ -165,7 +169,7 @@ def mbr_bias(
     est_fit = CornerPoseEstimator(solver=solver, length_m=length_m, width_m=width_m,
                                   height_m=height_m, mbr_correction="box_fit")
     fit = est_fit.solve_corners(mbr, model, cam_ned)
-    if not raw or not fit:
+    if isinstance(raw, EstimationFailed) or isinstance(fit, EstimationFailed):
         return None
     truth = np.asarray(position_ned_m, dtype=np.float64)
     return (float(np.linalg.norm(raw.position_ned - truth)),
@@ -200,7 +204,7 @@ class CornerPoseEstimator:
     """
 
     def __init__(
-        self, *, solver: Solver, target: Any = None, length_m: float | None = None,
+        self, *, solver: Solver, target: TargetConfig | None = None, length_m: float | None = None,
         width_m: float | None = None, height_m: float | None = None, source: str = "pnp",
         mbr_correction: str = "auto", max_reprojection_error_px: float = 8.0,
         previous_pose_weight_px_per_m: float = 20.0, tilt_weight_px_per_deg: float = 0.5,
@@ -236,8 +240,6 @@ class CornerPoseEstimator:
         """Run the solver and the compiled region residual once on a synthetic view, so that
         numba's compilation (~15 s the first time on a machine, ~1 s from its disk cache)
         happens when the mission is built, not on the first narrow-camera frame."""
-        from eaglemission.geometry import CameraMount
-
         model = CameraModel.from_lens("warm_up", focal_length_mm=12.0, mount=CameraMount(0, -30, 0))
         cam = Pose(np.array([[0.0, -0.5, 0.8660254037844387], [1.0, 0.0, 0.0],
                              [0.0, 0.8660254037844387, 0.5]]), np.array([-4.0, 0.0, -2.3]))
@@ -271,7 +273,7 @@ class CornerPoseEstimator:
         for shift in self._shifts():
             obj = np.roll(self.model_points, shift, axis=0)  # image corner k <-> model k - shift
             est = self.solver(obj, nrm)
-            if not est:
+            if isinstance(est, EstimationFailed):
                 reasons.append(str(est))
                 continue
             poses = est.candidates or ((est.R, est.t_m),)
@@ -327,8 +329,8 @@ class CornerPoseEstimator:
                 fits.append(f)
                 if f.error_px < self.good_fit_px:
                     break  # explained to within the segmentation noise: no need for the next model
-        if not fits:
-            return cands
+        if not fits:  # no region model fitted: the PnP choice, or why there is none
+            return cands if isinstance(cands, EstimationFailed) else cands[0]
         best_fit = min(fits, key=lambda f: f.error_px)
         if (start is not None and start.error_px <= best_fit.error_px
                 and start.tilt_deg <= self.tilt_free_deg):
@@ -348,6 +350,7 @@ class CornerPoseEstimator:
         R_cn = np.ascontiguousarray(cam_ned.R.T)
         cam_t = np.ascontiguousarray(cam_ned.t, dtype=np.float64)
         residual = _region_residual(model, corners_t, R_cn, cam_t, observed)
+        jac = residual.jac if isinstance(residual, _CompiledRegionResidual) else None
 
         # Starts: the PnP pose, and the ray through the MBR centre meeting the plane of the
         # region's mid-height (ground assumed at d = 0, top at -height_m), then moved up to the
@@ -366,9 +369,7 @@ class CornerPoseEstimator:
             return None
         good_cost = 0.5 * 8 * self.good_fit_px ** 2 / 2  # least_squares' cost at ~good_fit_px
 
-        jac = getattr(residual, "jac", None)
-
-        def polish(x0: NDArray[np.float64], nfev: int) -> Any:
+        def polish(x0: NDArray[np.float64], nfev: int) -> _LMResult | None:
             if jac is not None:
                 return _lm_fit(residual, jac, x0, nfev, xtol=1e-7, ftol=1e-6)
             try:
@@ -376,7 +377,9 @@ class CornerPoseEstimator:
                                     xtol=1e-7, ftol=1e-6, max_nfev=nfev)
             except (ValueError, np.linalg.LinAlgError):
                 return None
-            return sol if np.isfinite(sol.x).all() else None
+            if not np.isfinite(sol.x).all():
+                return None
+            return _LMResult(sol.x, sol.fun, sol.cost)
 
         # Stage 1: a couple of LM iterations from every start (the initial residual is a poor
         # guide: a start 5 deg off in yaw can look worse than a wrong branch); stage 2: polish
@@ -433,7 +436,7 @@ class CornerPoseEstimator:
                               sol.error_px, sol.score)
 
     # -- the estimator interface ---------------------------------------------------------------
-    def estimate(self, detection: Detection, view: Any) -> TargetEstimate | EstimationFailed:
+    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
         cam_ned = view.camera_pose_ned
         best = self.solve_corners(detection.corners_px, view.model, cam_ned)
         if isinstance(best, EstimationFailed):
@@ -450,23 +453,24 @@ class CornerPoseEstimator:
         self._prev = (best.position_ned.copy(), best.yaw_deg, ts)
         rng = float(np.linalg.norm(best.t_ct))
         pose = PoseEstimate(R=best.R_ct, t_m=best.t_ct, reprojection_error=best.error_px)
+        p_ned, p_cam = best.position_ned, best.t_ct
         return TargetEstimate(
-            position_ned_m=tuple(float(v) for v in best.position_ned),  # type: ignore[arg-type]
-            position_cam_m=tuple(float(v) for v in best.t_ct),  # type: ignore[arg-type]
+            position_ned_m=(float(p_ned[0]), float(p_ned[1]), float(p_ned[2])),
+            position_cam_m=(float(p_cam[0]), float(p_cam[1]), float(p_cam[2])),
             timestamp_ns=ts, camera_id=view.model.camera_id or detection.camera_id,
             source=self.source, full_3d=True, yaw_deg=best.yaw_deg,
             std_m=self.std_m * max(rng, 1.0), pose=pose)
 
 
-_BOX_KERNEL: list[Any] = []
+_BOX_KERNEL: list[tuple[Any, Any] | None] = []
 
 
-def _box_kernel() -> Any:
+def _box_kernel() -> tuple[Any, Any] | None:
     """(region_residual, region_jacobian) compiled, or None without numba."""
     if not _BOX_KERNEL:
         try:
             from eaglemission.estimators._box_kernel import region_jacobian, region_residual
-            kern: Any = (region_residual, region_jacobian)
+            kern: tuple[Any, Any] | None = (region_residual, region_jacobian)
         except ImportError:  # pragma: no cover - numba is a dependency
             kern = None
         _BOX_KERNEL.append(kern)
@@ -509,6 +513,29 @@ def _lm_fit(fun: Callable[[NDArray[np.float64]], NDArray[np.float64]],
     return _LMResult(x, f, float(0.5 * np.dot(f, f)))
 
 
+class _CompiledRegionResidual:
+    """The compiled region residual (called with x) and its analytic Jacobian (``.jac(x)``)."""
+
+    __slots__ = ("_fun", "_jac", "_corners_t", "_R_cn", "_cam_t", "_K", "_dist", "_obs")
+
+    def __init__(self, kern: tuple[Any, Any], corners_t: NDArray[np.float64],
+                 R_cn: NDArray[np.float64], cam_t: NDArray[np.float64], K: NDArray[np.float64],
+                 dist: NDArray[np.float64], obs: NDArray[np.float64]) -> None:
+        self._fun, self._jac = kern
+        self._corners_t, self._R_cn, self._cam_t = corners_t, R_cn, cam_t
+        self._K, self._dist, self._obs = K, dist, obs
+
+    def __call__(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        r: NDArray[np.float64] = self._fun(np.asarray(x, dtype=np.float64), self._corners_t,
+                                           self._R_cn, self._cam_t, self._K, self._dist, self._obs)
+        return r
+
+    def jac(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        J: NDArray[np.float64] = self._jac(np.asarray(x, dtype=np.float64), self._corners_t,
+                                           self._R_cn, self._cam_t, self._K, self._dist, self._obs)
+        return J
+
+
 def _region_residual(
     model: CameraModel, corners_t: NDArray[np.float64], R_cn: NDArray[np.float64],
     cam_t: NDArray[np.float64], observed: NDArray[np.float64], *, backend: str = "numba",
@@ -522,19 +549,9 @@ def _region_residual(
             if model.distortion and any(model.distortion) else np.zeros(0))
     kern = _box_kernel() if backend == "numba" and dist.size in (0, 4, 5, 8) else None
     if kern is not None:
-        K = np.ascontiguousarray(model.K, dtype=np.float64)
-        obs = np.ascontiguousarray(observed, dtype=np.float64)
-
-        fun, jac = kern
-
-        def residual_numba(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            return fun(np.asarray(x, dtype=np.float64), corners_t, R_cn, cam_t, K, dist, obs)  # type: ignore[no-any-return]
-
-        def jacobian_numba(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            return jac(np.asarray(x, dtype=np.float64), corners_t, R_cn, cam_t, K, dist, obs)  # type: ignore[no-any-return]
-
-        residual_numba.jac = jacobian_numba  # type: ignore[attr-defined]
-        return residual_numba
+        return _CompiledRegionResidual(kern, corners_t, R_cn, cam_t,
+                                       np.ascontiguousarray(model.K, dtype=np.float64), dist,
+                                       np.ascontiguousarray(observed, dtype=np.float64))
 
     def residual(x: NDArray[np.float64]) -> NDArray[np.float64]:
         c, s_ = math.cos(math.radians(x[3])), math.sin(math.radians(x[3]))

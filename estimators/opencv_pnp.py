@@ -8,15 +8,19 @@ The ``SOLVEPNP_*`` flags are looked up by name: their numeric values changed in 
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import cv2
 import numpy as np
-from eaglemission.estimators.rpnp import refine_pose, reprojection_errors
+from eaglemission.estimators.pnp_refine import refine_pose, reprojection_errors
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from eaglemission.types import EstimationFailed, PoseEstimate
+from eaglemission.interfaces.estimator import CameraView
+from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate, Vec3
+
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
 
 SOLVEPNP_SQPNP: int = cv2.SOLVEPNP_SQPNP
 SOLVEPNP_IPPE: int = cv2.SOLVEPNP_IPPE
@@ -32,6 +36,11 @@ METHODS: dict[str, int] = {
 
 _EYE = np.eye(3)
 _ZERO = np.zeros(5)
+
+
+def _f64(m: cv2.typing.MatLike) -> NDArray[np.float64]:
+    """An OpenCV result as float64 (the solvers return float64 for float64 input: no copy)."""
+    return np.asarray(m, dtype=np.float64)
 
 
 def opencv_pnp(
@@ -72,14 +81,15 @@ def opencv_pnp(
     try:
         if method == "ippe" or return_all:
             nsol, rvecs, tvecs, _ = cv2.solvePnPGeneric(X, uv, _EYE, _ZERO, flags=flag)
-            sols = [(cv2.Rodrigues(rv)[0], tv.reshape(3)) for rv, tv in zip(rvecs, tvecs)]
+            sols = [(_f64(cv2.Rodrigues(rv)[0]), _f64(tv).reshape(3))
+                    for rv, tv in zip(rvecs, tvecs)]
         else:
             ok, rvec, tvec = cv2.solvePnP(X, uv, _EYE, _ZERO, flags=flag)
-            sols = [(cv2.Rodrigues(rvec)[0], tvec.reshape(3))] if ok else []
+            sols = [(_f64(cv2.Rodrigues(rvec)[0]), _f64(tvec).reshape(3))] if ok else []
     except cv2.error as exc:
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else "error"
         return EstimationFailed(f"{method}: OpenCV refused the input ({msg})")
-    scored = []
+    scored: list[tuple[float, Mat3, Vec3]] = []
     for R, t in sols:
         if not (np.isfinite(R).all() and np.isfinite(t).all()):
             continue
@@ -104,20 +114,21 @@ class OpenCVPnPConfig(BaseModel):
 
     refine: bool = False
     mbr_correction: Literal["auto", "box_fit", "none"] = "auto"
-    max_reprojection_error_px: float = Field(8.0, gt=0)
-    previous_pose_weight_px_per_m: float = Field(20.0, ge=0)
-    std_m: float = Field(0.05, gt=0)
+    max_reprojection_error_px: float = Field(default=8.0, gt=0)
+    previous_pose_weight_px_per_m: float = Field(default=20.0, ge=0)
+    std_m: float = Field(default=0.05, gt=0)
 
 
 class _OpenCVPnPEstimator:
-    Config: ClassVar[type[BaseModel]] = OpenCVPnPConfig
+    Config: ClassVar[type[OpenCVPnPConfig]] = OpenCVPnPConfig
     description: ClassVar[str] = ""
     method: ClassVar[str] = ""
 
-    def __init__(self, config: BaseModel | None = None, *, target: Any = None, **context: Any) -> None:
+    def __init__(self, config: OpenCVPnPConfig | None = None, *,
+                 target: TargetConfig | None = None, **context: object) -> None:
         from eaglemission.estimators.correspondence import CornerPoseEstimator
 
-        self.config: Any = config if config is not None else OpenCVPnPConfig()
+        self.config: OpenCVPnPConfig = config if config is not None else OpenCVPnPConfig()
         cfg = self.config
         method = self.method
 
@@ -133,7 +144,7 @@ class _OpenCVPnPEstimator:
     def reset(self) -> None:
         self._core.reset()
 
-    def estimate(self, detection: Any, view: Any) -> Any:
+    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
         return self._core.estimate(detection, view)
 
 

@@ -32,13 +32,17 @@ References
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import intersect_ray_with_horizontal_plane
+from eaglemission.interfaces.estimator import CameraView
 from eaglemission.types import Detection, EstimationFailed, TargetEstimate
+
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
 
 
 def eq16_offset(delta_p_px: float, beta: float, fov: float, resolution_px: float) -> float:
@@ -71,22 +75,23 @@ class PixelOffsetConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     depth_source: Literal["optical_axis_ground", "fixed"] = "optical_axis_ground"
-    fixed_depth_m: float = Field(6.0, gt=0, description="working distance when depth_source=fixed")
-    max_depth_m: float = Field(60.0, gt=0, description="fail beyond this depth (near the horizon)")
-    std_fraction: float = Field(0.3, gt=0, description="reported std as a fraction of the depth")
+    fixed_depth_m: float = Field(default=6.0, gt=0, description="working distance when depth_source=fixed")
+    max_depth_m: float = Field(default=60.0, gt=0, description="fail beyond this depth (near the horizon)")
+    std_fraction: float = Field(default=0.3, gt=0, description="reported std as a fraction of the depth")
 
 
 class PixelOffsetEstimator:
     """Plugin ``pixel_offset``: paper Eq. (16), offsets parallel to the image plane."""
 
-    Config: ClassVar[type[BaseModel]] = PixelOffsetConfig
+    Config: ClassVar[type[PixelOffsetConfig]] = PixelOffsetConfig
     description: ClassVar[str] = "Eq. (16) of the paper: offset parallel to the image plane from the MBR centre"
 
-    def __init__(self, config: BaseModel | None = None, *, target: Any = None, **context: Any) -> None:
-        self.config: Any = config if config is not None else PixelOffsetConfig()
+    def __init__(self, config: PixelOffsetConfig | None = None, *,
+                 target: TargetConfig | None = None, **context: object) -> None:
+        self.config: PixelOffsetConfig = config if config is not None else PixelOffsetConfig()
         self.top_height_m = float(getattr(target, "height_m", 0.0) or 0.0)
 
-    def estimate(self, detection: Detection, view: Any) -> TargetEstimate | EstimationFailed:
+    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
         model = view.model
         cfg = self.config
         cam = view.camera_pose_ned
@@ -94,7 +99,8 @@ class PixelOffsetEstimator:
             depth = cfg.fixed_depth_m
         else:
             axis_ned = cam.R @ np.array([0.0, 0.0, 1.0])
-            hit = intersect_ray_with_horizontal_plane(cam.t, axis_ned, -self.top_height_m)
+            hit = intersect_ray_with_horizontal_plane(tuple(cam.t), tuple(axis_ned),
+                                                      -self.top_height_m)
             if hit is None:
                 return EstimationFailed("pixel_offset: the optical axis is at or above the horizon; "
                                         "no depth for Eq. (16) (use depth_source=fixed)")
@@ -114,7 +120,7 @@ class PixelOffsetEstimator:
         p_cam = np.array([e_x, e_y, depth])
         p_ned = cam.R @ p_cam + cam.t
         return TargetEstimate(
-            position_ned_m=tuple(float(v) for v in p_ned),  # type: ignore[arg-type]
+            position_ned_m=(float(p_ned[0]), float(p_ned[1]), float(p_ned[2])),
             position_cam_m=(float(e_x), float(e_y), float(depth)),
             timestamp_ns=int(view.timestamp_ns), camera_id=model.camera_id,
             source="pixel_offset", full_3d=False, std_m=cfg.std_fraction * depth)

@@ -15,9 +15,10 @@ The pure function :func:`rpnp` implements the whole algorithm:
    points with the points pushed onto their viewing rays, and the choice of the candidate with
    the smallest mean reprojection error in normalised coordinates.
 
-An optional Levenberg-Marquardt polish on the reprojection error (``refine=True``) is off by
-default. :class:`RPnPEstimator` (plugin ``rpnp``) applies it to a detection's four corners with
-the target's top face as the model (see :mod:`eaglemission.estimators.correspondence`).
+An optional Levenberg-Marquardt polish on the reprojection error (``refine=True``, from
+:mod:`~eaglemission.estimators.pnp_refine`, shared with the OpenCV solvers) is off by default.
+:class:`RPnPEstimator` (plugin ``rpnp``) applies it to a detection's four corners with the
+target's top face as the model (see :mod:`eaglemission.estimators.correspondence`).
 
 References
 ----------
@@ -28,15 +29,24 @@ References
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import cv2
 import numpy as np
+from eaglemission.estimators.pnp_refine import (
+    _refine_kernel,  # noqa: F401 - the loader tests/core/test_kernels.py looks up here
+    refine_pose,
+    reprojection_errors,
+)
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from eaglemission.interfaces.estimator import CameraView
 from eaglemission.kernels import lazy_kernel
-from eaglemission.types import EstimationFailed, Mat3, PoseEstimate, Vec3
+from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate
+
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
 
 __all__ = ["rpnp", "refine_pose", "reprojection_errors", "RPnPEstimator", "RPnPConfig"]
 
@@ -65,46 +75,6 @@ def _frame_from_axis(x: NDArray[np.float64]) -> Mat3:
     ny = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
     nz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
     return np.array([[x0, y0 / ny, z0 / nz], [x1, y1 / ny, z1 / nz], [x2, y2 / ny, z2 / nz]])
-
-
-def _umeyama(obj: NDArray[np.float64], cam: NDArray[np.float64]) -> tuple[Mat3, Vec3]:
-    """Scaled Procrustes: R, t with ``cam ~ s R obj + t`` fitted, returned as (R, t) where
-    ``t = mean(cam) - s R mean(obj)`` (the reference ``calcampose``)."""
-    n = obj.shape[0]
-    mx = obj.sum(axis=0) / n
-    my = cam.sum(axis=0) / n
-    X = obj - mx
-    Y = cam - my
-    sigma_x2 = float(np.einsum("ij,ij->", X, X)) / n
-    U, d, Vt = np.linalg.svd((Y.T @ X) / n)
-    R = U @ Vt
-    d2 = float(d[2])
-    if _det3(R) < 0:
-        U[:, 2] = -U[:, 2]
-        R = U @ Vt
-        d2 = -d2
-    scale = (float(d[0]) + float(d[1]) + d2) / sigma_x2 if sigma_x2 > 0 else 1.0
-    t = my - scale * (R @ mx)
-    return R, t
-
-
-def _det3(m: NDArray[np.float64]) -> float:
-    return float(m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-                 - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-                 + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
-
-
-def reprojection_errors(
-    R: Mat3, t: Vec3, object_points: NDArray[np.float64], normalized_points: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Per-point reprojection error in normalised image units (inf behind the camera)."""
-    Xc = object_points @ R.T + t
-    z = Xc[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        proj = Xc[:, :2] / z[:, None]
-        e = np.linalg.norm(proj - normalized_points, axis=1)
-    e[~(z > 0)] = np.inf
-    return e
 
 
 def _choose_pair_longest(uv: NDArray[np.float64]) -> tuple[int, int]:
@@ -213,6 +183,8 @@ def _local_minima(poly7: NDArray[np.float64]) -> NDArray[np.float64]:
     p = poly7[lead[0]:]
     if p.size < 2:
         return np.empty(0)
+    # eigvals gives a real array when every eigenvalue is real
+    roots: NDArray[np.floating[Any]] | NDArray[np.complexfloating[Any, Any]]
     if p.size == 2:
         roots = np.array([-p[1] / p[0]], dtype=np.complex128)
     else:
@@ -225,109 +197,9 @@ def _local_minima(poly7: NDArray[np.float64]) -> NDArray[np.float64]:
         roots = roots[np.abs(roots.imag) / maxreal <= _IMAG_TOL]
     else:
         roots = roots[np.abs(roots.imag) <= _IMAG_TOL]
-    t = roots.real
+    t = np.asarray(roots.real, dtype=np.float64)  # a view of the roots: no copy
     dp = np.polyder(p)
     return t[np.polyval(dp, t) > 0]
-
-
-# ---------------------------------------------------------------------------------------------
-# Refinement
-# ---------------------------------------------------------------------------------------------
-def _skew_batch(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    z = np.zeros(v.shape[0])
-    return np.stack((
-        np.stack((z, -v[:, 2], v[:, 1]), axis=1),
-        np.stack((v[:, 2], z, -v[:, 0]), axis=1),
-        np.stack((-v[:, 1], v[:, 0], z), axis=1),
-    ), axis=1)
-
-
-def _rodrigues(w: NDArray[np.float64]) -> Mat3:
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-12:
-        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-        return np.eye(3) + K
-    k = w / theta
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
-
-
-def refine_pose(
-    R: Mat3, t: Vec3, object_points: NDArray[np.float64], normalized_points: NDArray[np.float64],
-    *, max_iterations: int = 10, tol: float = 1e-12,
-    backend: Literal["numba", "numpy"] = "numba",
-) -> tuple[Mat3, Vec3]:
-    """Levenberg-Marquardt on the reprojection error in normalised coordinates.
-
-    Parameterised by a left-multiplied rotation increment ``R <- exp([w]) R`` and ``t <- t + dt``;
-    the Jacobian is analytic and vectorised over the points. Returns the input pose unchanged if
-    no step lowers the error (e.g. points behind the camera). ``backend="numba"`` (default) runs
-    the compiled loop of ``_rpnp_kernel.refine_pose_core`` (the same iterations, ~20x faster
-    at n = 4; tests compare it with this numpy reference).
-    """
-    kern = _refine_kernel() if backend == "numba" else None
-    if kern is not None:
-        Rr, tr, _ = kern(np.ascontiguousarray(R, dtype=np.float64),
-                         np.ascontiguousarray(t, dtype=np.float64),
-                         np.ascontiguousarray(object_points, dtype=np.float64),
-                         np.ascontiguousarray(normalized_points, dtype=np.float64),
-                         int(max_iterations), float(tol))
-        return Rr, tr
-    X = object_points
-    m = normalized_points
-    lam = 1e-3
-
-    def residual(Rk: Mat3, tk: Vec3) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-        Xc = X @ Rk.T + tk
-        if not (Xc[:, 2] > 0).all():
-            return None
-        return Xc, (Xc[:, :2] / Xc[:, 2:3] - m).reshape(-1)
-
-    cur = residual(R, t)
-    if cur is None:
-        return R, t
-    Xc, r = cur
-    cost = float(r @ r)
-    for _ in range(max_iterations):
-        z = Xc[:, 2]
-        iz = 1.0 / z
-        # d(proj)/d(Xc): (n, 2, 3)
-        Jp = np.zeros((X.shape[0], 2, 3))
-        Jp[:, 0, 0] = iz
-        Jp[:, 1, 1] = iz
-        Jp[:, 0, 2] = -Xc[:, 0] * iz * iz
-        Jp[:, 1, 2] = -Xc[:, 1] * iz * iz
-        # d(Xc)/dw = -[R X]_x, d(Xc)/dt = I.
-        RX = Xc - t
-        Jw = -np.einsum("nij,njk->nik", Jp, _skew_batch(RX))
-        J = np.concatenate((Jw, Jp), axis=2).reshape(-1, 6)
-        H = J.T @ J
-        g = J.T @ r
-        improved = False
-        for _ in range(8):
-            try:
-                step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            R_new = _rodrigues(step[:3]) @ R
-            t_new = t + step[3:]
-            nxt = residual(R_new, t_new)
-            if nxt is not None and float(nxt[1] @ nxt[1]) < cost:
-                R, t = R_new, t_new
-                Xc, r = nxt
-                new_cost = float(r @ r)
-                done = cost - new_cost <= tol * max(cost, 1e-300)
-                cost = new_cost
-                lam = max(lam / 10, 1e-9)
-                improved = True
-                break
-            lam *= 10
-        if not improved or done:
-            break
-    # Re-orthonormalise (the exponential map keeps R orthonormal up to round-off).
-    U, _, Vt = np.linalg.svd(R)
-    return U @ Vt, t
 
 
 # ---------------------------------------------------------------------------------------------
@@ -417,9 +289,8 @@ def rpnp(
     return result
 
 
-# the compiled RPnP and refinement (loaded on first use; None: numpy reference)
+# the compiled RPnP (loaded on first use; None: numpy reference)
 _kernel = lazy_kernel("eaglemission.estimators._rpnp_kernel", "rpnp_core")
-_refine_kernel = lazy_kernel("eaglemission.estimators._rpnp_kernel", "refine_pose_core")
 
 
 _STATUS = {
@@ -557,7 +428,9 @@ def _rpnp_numpy(
 
 
 def _umeyama_batch(obj: NDArray[np.float64], cams: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """:func:`_umeyama` for m point sets at once: ``obj`` (n, 3), ``cams`` (m, n, 3)."""
+    """Scaled Procrustes (Umeyama) of m point sets at once: ``obj`` (n, 3), ``cams`` (m, n, 3);
+    returns R (m, 3, 3), t (m, 3) with ``cams[k] ~ s_k R[k] obj + t[k]`` fitted, where
+    ``t = mean(cam) - s R mean(obj)`` (the reference ``calcampose``)."""
     n = obj.shape[0]
     mx = obj.sum(axis=0) / n
     my = cams.sum(axis=1) / n
@@ -588,25 +461,26 @@ class RPnPConfig(BaseModel):
     seed: int = 0
     refine: bool = False
     mbr_correction: Literal["auto", "box_fit", "none"] = Field(
-        "auto", description="MBR model: auto = the better of box silhouette / top face alone; "
+        default="auto", description="MBR model: auto = the better of box silhouette / top face alone; "
                             "box_fit = silhouette; none = MBR corners are the top face (paper)")
     max_reprojection_error_px: float = Field(
-        8.0, gt=0, description="reject poses whose mean corner reprojection error is larger")
+        default=8.0, gt=0, description="reject poses whose mean corner reprojection error is larger")
     previous_pose_weight_px_per_m: float = Field(
-        20.0, ge=0, description="weight of the distance to the previous pose in the corner-order choice")
-    std_m: float = Field(0.05, gt=0, description="reported 1-sigma position uncertainty at 1 m range")
+        default=20.0, ge=0, description="weight of the distance to the previous pose in the corner-order choice")
+    std_m: float = Field(default=0.05, gt=0, description="reported 1-sigma position uncertainty at 1 m range")
 
 
 class RPnPEstimator:
     """Plugin ``rpnp``: target pose from a detection's 4 corners (top face as the model)."""
 
-    Config: ClassVar[type[BaseModel]] = RPnPConfig
+    Config: ClassVar[type[RPnPConfig]] = RPnPConfig
     description: ClassVar[str] = "RPnP (Li, Xu, Xie 2012) on the target's top face from the MBR corners"
 
-    def __init__(self, config: BaseModel | None = None, *, target: Any = None, **context: Any) -> None:
+    def __init__(self, config: RPnPConfig | None = None, *, target: TargetConfig | None = None,
+                 **context: object) -> None:
         from eaglemission.estimators.correspondence import CornerPoseEstimator
 
-        self.config: Any = config if config is not None else RPnPConfig()
+        self.config: RPnPConfig = config if config is not None else RPnPConfig()
         cfg = self.config
         rng = np.random.default_rng(cfg.seed)
 
@@ -622,5 +496,5 @@ class RPnPEstimator:
     def reset(self) -> None:
         self._core.reset()
 
-    def estimate(self, detection: Any, view: Any) -> Any:
+    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
         return self._core.estimate(detection, view)

@@ -19,21 +19,27 @@ at the frame (the ground plane is at home's height, docs/conventions.md).
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, ClassVar
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import CameraModel, Pose, ray_plane_points
 from eaglemission.interfaces.estimator import CameraView
 from eaglemission.types import Detection, PlaneFit
 
+if TYPE_CHECKING:
+    from eaglemission.config import TargetConfig
+
 REGIONS = ("top", "box")
 
 
-def box_points_ned(top_ned_m: Any, yaw_deg: float, length_m: float, width_m: float,
-                   height_m: float, region: str) -> np.ndarray:
+def box_points_ned(top_ned_m: Sequence[float] | NDArray[np.float64], yaw_deg: float,
+                   length_m: float, width_m: float, height_m: float, region: str
+                   ) -> NDArray[np.float64]:
     """Corners of the top face (``region="top"``, 4) or of the whole box (``"box"``, 8)."""
     c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
     hl, hw = length_m / 2, width_m / 2
@@ -44,7 +50,7 @@ def box_points_ned(top_ned_m: Any, yaw_deg: float, length_m: float, width_m: flo
     return np.asarray(top + [(n, e, d + height_m) for n, e, d in top])
 
 
-def mbr(points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def mbr(points_px: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Centre, sorted side lengths and the long side's direction (deg, modulo 180) of the
     minimum-area rectangle of image points."""
     (cx, cy), (w, h), ang = cv2.minAreaRect(np.asarray(points_px, dtype=np.float32))
@@ -52,7 +58,7 @@ def mbr(points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return np.array([cx, cy]), np.sort(np.array([w, h], dtype=np.float64)), long_deg
 
 
-def angle_cost(dims_a: np.ndarray, long_a_deg: float, dims_b: np.ndarray,
+def angle_cost(dims_a: NDArray[np.float64], long_a_deg: float, dims_b: NDArray[np.float64],
                long_b_deg: float, per_deg: float = 1.0 / 45.0) -> float:
     """Mismatch of two rectangles' long-side directions, weighted by how elongated both are
     (the direction of a square is undefined)."""
@@ -61,20 +67,21 @@ def angle_cost(dims_a: np.ndarray, long_a_deg: float, dims_b: np.ndarray,
     return d * per_deg * float(np.clip(elong / 0.3, 0.0, 1.0))
 
 
-def plane_hit(cam_ned: Pose, model: CameraModel, pixel: Any, plane_down_m: float
-              ) -> np.ndarray | None:
+def plane_hit(cam_ned: Pose, model: CameraModel, pixel: ArrayLike, plane_down_m: float
+              ) -> NDArray[np.float64] | None:
     """Where the ray through ``pixel`` meets the plane ``down = plane_down_m`` (NED)."""
     ray = cam_ned.R @ model.rays_optical(np.asarray([pixel], dtype=np.float64))[0]
-    hit = ray_plane_points(cam_ned.t, ray[None, :], plane_down_m, min_down=1e-3)[0]
+    hit = ray_plane_points(tuple(cam_ned.t), ray[None, :], plane_down_m, min_down=1e-3)[0]
     return hit if np.isfinite(hit).all() else None
 
 
-def _image_rect(width_px: int, height_px: int) -> np.ndarray:
+def _image_rect(width_px: int, height_px: int) -> NDArray[np.float32]:
     return np.array([[0, 0], [width_px - 1, 0], [width_px - 1, height_px - 1],
                      [0, height_px - 1]], dtype=np.float32)
 
 
-def _clipped_mbr(points_px: np.ndarray, image_rect: np.ndarray) -> Any:
+def _clipped_mbr(points_px: NDArray[np.float32], image_rect: NDArray[np.float32]
+                 ) -> cv2.typing.RotatedRect | None:
     """``cv2.minAreaRect`` of ``clip_to_image(points_px)`` (float32 points; None when the
     clipped region is empty), as :func:`mbr` computes it."""
     hull = cv2.convexHull(points_px)
@@ -84,39 +91,44 @@ def _clipped_mbr(points_px: np.ndarray, image_rect: np.ndarray) -> Any:
     return cv2.minAreaRect(poly)
 
 
-def clip_to_image(points_px: np.ndarray, width_px: int, height_px: int) -> np.ndarray | None:
+def clip_to_image(points_px: ArrayLike, width_px: int, height_px: int
+                  ) -> NDArray[np.float64] | None:
     """The convex hull of image points clipped to the image rectangle (what a detector can
     see of a target at the border); None when nothing is left."""
     hull = cv2.convexHull(np.asarray(points_px, dtype=np.float32))
     area, poly = cv2.intersectConvexConvex(hull, _image_rect(width_px, height_px))
     if poly is None or area <= 1.0:
         return None
-    return np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+    seen: NDArray[np.float64] = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+    return seen
 
 
-def angle_costs(dims_a: np.ndarray, long_a_deg: float, dims_b: np.ndarray,
-                long_b_deg: np.ndarray, per_deg: float = 1.0 / 45.0) -> np.ndarray:
+def angle_costs(dims_a: NDArray[np.float64], long_a_deg: float, dims_b: NDArray[np.float64],
+                long_b_deg: NDArray[np.float64], per_deg: float = 1.0 / 45.0
+                ) -> NDArray[np.float64]:
     """:func:`angle_cost` of one rectangle against (n,) rectangles (``dims_b`` (n, 2))."""
     d = np.abs((long_a_deg - long_b_deg + 90.0) % 180.0 - 90.0)
     elong_b = dims_b[:, 1] / np.maximum(dims_b[:, 0], 1e-9)
     elong = np.minimum(dims_a[1] / max(dims_a[0], 1e-9), elong_b) - 1.0
-    return d * per_deg * np.clip(elong / 0.3, 0.0, 1.0)
+    costs: NDArray[np.float64] = d * per_deg * np.clip(elong / 0.3, 0.0, 1.0)
+    return costs
 
 
-def plane_hits(cam_ned: Pose, model: CameraModel, pixels: Any, plane_down_m: float
-               ) -> np.ndarray:
+def plane_hits(cam_ned: Pose, model: CameraModel, pixels: ArrayLike, plane_down_m: float
+               ) -> NDArray[np.float64]:
     """:func:`plane_hit` of (n, 2) pixels: (n, 3), NaN rows where the ray misses."""
     px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     if len(px) == 0:
         return np.full((0, 3), np.nan)
     # R @ ray per row (a stacked matrix-vector product: the same rounding as plane_hit's)
     rays = (cam_ned.R[None] @ model.rays_optical(px)[:, :, None])[:, :, 0]
-    return ray_plane_points(cam_ned.t, rays, plane_down_m, min_down=1e-3)
+    return ray_plane_points(tuple(cam_ned.t), rays, plane_down_m, min_down=1e-3)
 
 
-def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: Any, corners_px: Any,
-                     target: Any, *, ground_down_m: float = 0.0, yaw_step_deg: float = 15.0,
-                     iterations: int = 3, yaw_hint_deg: float | None = None,
+def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
+                     corners_px: ArrayLike, target: TargetConfig, *, ground_down_m: float = 0.0,
+                     yaw_step_deg: float = 15.0, iterations: int = 3,
+                     yaw_hint_deg: float | None = None,
                      region_hint: str | None = None) -> PlaneFit | None:
     """Top-face centre of the target whose top face or box silhouette best explains a
     detection (see the module docstring); None when the ray misses the plane or the model
@@ -129,7 +141,7 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: Any, corners_
 
     All (heading, region) hypotheses are iterated together: projections and ray-plane
     intersections are batched, only the clipping and the MBR (OpenCV) run per hypothesis.
-    Same fits as :func:`fit_on_top_plane_reference` (tests/missions/test_silhouette.py)."""
+    Same fits as :func:`fit_on_top_plane_reference` (tests/estimators/test_top_plane.py)."""
     plane = ground_down_m - float(target.height_m)
     to_cam = cam_ned.inverse()
     # the detection's MBR may reach past the border: compare what lies inside the image
@@ -178,7 +190,7 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: Any, corners_
         pts_k[:, 4:8, 2] = q[:, 2:3] + target.height_m
         pts_k[:, 8] = q
         px = model.project(to_cam.apply(pts_k.reshape(-1, 3))).reshape(k, 9, 2)
-        fin = np.isfinite(px).all(axis=2)
+        fin = np.asarray(np.isfinite(px).all(axis=2))
         fin = fin[:, 8] & fin[:, :4].all(axis=1) & ((n_pts[idx] == 4) | fin[:, 4:8].all(axis=1))
         px32 = px.astype(np.float32)  # what OpenCV sees (clip_to_image, mbr)
         c_model = np.zeros((k, 2))
@@ -209,10 +221,12 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: Any, corners_
                     float(np.sqrt(ratio[best].prod())))
 
 
-def fit_on_top_plane_reference(model: CameraModel, cam_ned: Pose, center_px: Any, corners_px: Any,
-                     target: Any, *, ground_down_m: float = 0.0, yaw_step_deg: float = 15.0,
-                     iterations: int = 3, yaw_hint_deg: float | None = None,
-                     region_hint: str | None = None) -> PlaneFit | None:
+def fit_on_top_plane_reference(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
+                               corners_px: ArrayLike, target: TargetConfig, *,
+                               ground_down_m: float = 0.0, yaw_step_deg: float = 15.0,
+                               iterations: int = 3,
+                               yaw_hint_deg: float | None = None,
+                               region_hint: str | None = None) -> PlaneFit | None:
     """The straightforward implementation of :func:`fit_on_top_plane` (one hypothesis at a
     time), kept as the reference its tests compare the batched path against."""
     plane = ground_down_m - float(target.height_m)
@@ -272,16 +286,17 @@ class TopPlaneFitter:
     :class:`~eaglemission.interfaces.fitter.PlaneFitter` Protocol (not in the paper:
     docs/estimators.md, "top-plane fit")."""
 
-    description = ("top face or box silhouette of the target fitted on the plane of its top "
+    description: ClassVar[str] = ("top face or box silhouette of the target fitted on the plane of its top "
                    "(MBR centre, side lengths and direction over a grid of headings)")
 
     class Config(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-        yaw_step_deg: float = Field(15.0, gt=0, le=90, description="heading grid step")
+        yaw_step_deg: float = Field(default=15.0, gt=0, le=90, description="heading grid step")
 
-    def __init__(self, config: Config | None = None, *, target: Any, **_context: Any) -> None:
-        self.config = config or self.Config()
+    def __init__(self, config: Config | None = None, *, target: TargetConfig,
+                 **_context: object) -> None:
+        self.config: TopPlaneFitter.Config = config or self.Config()
         self.target = target
 
     def fit(self, detection: Detection, view: CameraView, *, plane_down_m: float,

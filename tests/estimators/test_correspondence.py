@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from eaglemission.estimators.correspondence import (
     CornerPoseEstimator,
+    CornerSolution,
     box_corners,
     order_corners,
     project_box_mbr,
@@ -177,6 +178,29 @@ def test_target_config_required():
     with pytest.raises(ValueError, match="target"):
         CornerPoseEstimator(solver=rpnp)
     assert TargetConfig(length_m=0.4, width_m=0.25).aspect_ratio == pytest.approx(1.6)
+
+
+def test_no_region_fit_keeps_the_pnp_choice(mission, monkeypatch):
+    """When no region model can be fitted (every LM start fails), the MBR-corrected estimator
+    keeps the PnP hypothesis (solve_corners used to return the whole hypothesis list, which
+    made estimate() raise AttributeError)."""
+    narrow = mission.cameras.narrow.to_model("narrow")
+    target = mission.target
+    pos, q = approach_pose((0, 0, -target.height_m), 4.0, 30.0, 0.0)
+    view = view_at(narrow, pos, q)
+    R_ct, t_ct = target_pose_in_camera(view.camera_pose_ned, np.array([0, 0, -target.height_m]), 20.0)
+    mbr = project_box_mbr(narrow, R_ct, t_ct, target.length_m, target.width_m, target.height_m)
+    est = RPnPEstimator(RPnPConfig(mbr_correction="box_fit", max_reprojection_error_px=1e3),
+                        target=target)
+    monkeypatch.setattr(CornerPoseEstimator, "_box_fit", lambda self, *a, **k: None)
+    pnp = est._core.candidates(mbr, narrow, view.camera_pose_ned)[0]
+    sol = est._core.solve_corners(mbr, narrow, view.camera_pose_ned)
+    assert isinstance(sol, CornerSolution)
+    assert sol.shift == pnp.shift and np.array_equal(sol.position_ned, pnp.position_ned)
+    det = Detection(1.0, tuple(mbr.mean(axis=0)), mbr, (1, 1), 0, 1, "narrow")
+    res = est.estimate(det, view)
+    assert isinstance(res, TargetEstimate)
+    np.testing.assert_array_equal(res.position_ned_m, pnp.position_ned)
 
 
 def test_auto_region_model_handles_top_only_segmentation(mission):

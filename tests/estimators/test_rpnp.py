@@ -7,7 +7,6 @@ import cv2
 import numpy as np
 import pytest
 from eaglemission.estimators.opencv_pnp import opencv_pnp
-from eaglemission.estimators.pnp_synthetic import make_case, normalized, rotation_error_deg
 from eaglemission.estimators.rpnp import (
     cost_derivative_poly7,
     p3p_quartics,
@@ -15,6 +14,7 @@ from eaglemission.estimators.rpnp import (
     reprojection_errors,
     rpnp,
 )
+from pnp_synthetic import make_case, normalized, rotation_error_deg
 
 from eaglemission.types import EstimationFailed, PoseEstimate
 

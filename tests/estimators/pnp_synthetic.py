@@ -1,17 +1,21 @@
 """Synthetic PnP problems after the protocol of Li, Xu, Xie (TPAMI 2012), used by the tests and
 ``benchmarks/bench_pnp.py``: point families in the camera frame, the mission's top-face case,
-and the protocol's error measures."""
+and the protocol's error measures (test code: imported by name, ``from pnp_synthetic import
+...``; pytest puts this folder on ``sys.path``, the benchmark adds it itself)."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from eaglemission.geometry import euler_to_R
 
+Case = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
 
-def random_rotation(rs: np.random.RandomState) -> np.ndarray:
+
+def random_rotation(rs: np.random.RandomState) -> NDArray[np.float64]:
     q = rs.normal(size=4)
     q /= np.linalg.norm(q)
     w, x, y, z = q
@@ -22,7 +26,8 @@ def random_rotation(rs: np.random.RandomState) -> np.ndarray:
     ])
 
 
-def make_case(family: str, n: int, rs: np.random.RandomState, *, rect=(0.40, 0.25)):
+def make_case(family: str, n: int, rs: np.random.RandomState, *,
+              rect: tuple[float, float] = (0.40, 0.25)) -> Case:
     """(object_points (n,3), camera points (n,3), R, t) with X_c = R X_o + t.
 
     families: ``ordinary`` ([-2,2]x[-2,2]x[4,8] in the camera frame), ``quasi_singular``
@@ -66,15 +71,16 @@ def make_case(family: str, n: int, rs: np.random.RandomState, *, rect=(0.40, 0.2
     raise ValueError(family)
 
 
-def normalized(Xc: np.ndarray) -> np.ndarray:
-    return Xc[:, :2] / Xc[:, 2:3]
+def normalized(Xc: NDArray[np.float64]) -> NDArray[np.float64]:
+    uv: NDArray[np.float64] = Xc[:, :2] / Xc[:, 2:3]
+    return uv
 
 
-def rotation_error_deg(R: np.ndarray, R_true: np.ndarray) -> float:
+def rotation_error_deg(R: NDArray[np.float64], R_true: NDArray[np.float64]) -> float:
     """The protocol's rotation error: largest angle between corresponding columns (deg)."""
     c = np.clip(np.sum(R * R_true, axis=0), -1.0, 1.0)
     return float(np.degrees(np.arccos(c)).max())
 
 
-def translation_error_pct(t: np.ndarray, t_true: np.ndarray) -> float:
+def translation_error_pct(t: NDArray[np.float64], t_true: NDArray[np.float64]) -> float:
     return float(np.linalg.norm(t - t_true) / np.linalg.norm(t_true) * 100.0)
