@@ -165,7 +165,8 @@ def _appearance(cfg: MissionFile) -> Any:
 def detector_params(cfg: MissionFile, camera_id: str) -> dict[str, Any]:
     """The detector params of one camera: ``detector.params`` with that camera's
     ``detector.per_camera`` overrides merged in (nested mappings merge key by key)."""
-    return merge_params(cfg.detector.params, cfg.detector.per_camera.get(camera_id, {}))  # type: ignore[call-overload]
+    over = next((v for k, v in cfg.detector.per_camera.items() if k == camera_id), {})
+    return merge_params(cfg.detector.params, over)
 
 
 def build_vehicle(cfg: MissionFile, clock: Clock, shared: SharedContext

@@ -17,9 +17,10 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Coroutine
-from typing import Any, Protocol, TypeVar, runtime_checkable
+from typing import Any, Protocol, TypeVar, TypeVarTuple, Unpack, runtime_checkable
 
 T = TypeVar("T")
+Ts = TypeVarTuple("Ts")
 
 
 @runtime_checkable
@@ -118,7 +119,8 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         super().__init__()
         self._virtual_s = float(start_s)
         self._workers: deque[tuple[concurrent.futures.Future[Any], asyncio.Future[Any]]] = deque()
-        self._selector = _VirtualSelector(self._selector, self)  # type: ignore[has-type,arg-type]
+        internals: Any = self  # asyncio's private selector-loop attributes (not in typeshed)
+        internals._selector = _VirtualSelector(internals._selector, self)
         self._clock_resolution = 1e-9
 
     def time(self) -> float:
@@ -129,16 +131,18 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         """Worker calls submitted and not yet handed back."""
         return len(self._workers)
 
-    def run_in_executor(self, executor: Any, func: Any, *args: Any) -> Any:  # type: ignore[override]  # same contract as asyncio's, typed loosely
-        self._check_closed()  # type: ignore[attr-defined]
-        pool: concurrent.futures.Executor | None = executor or self._default_executor  # type: ignore[has-type]
+    def run_in_executor(self, executor: concurrent.futures.Executor | None,
+                        func: Callable[[Unpack[Ts]], T], *args: Unpack[Ts]) -> asyncio.Future[T]:
+        internals: Any = self  # asyncio's private selector-loop API (not in typeshed)
+        internals._check_closed()
+        pool: concurrent.futures.Executor | None = executor or internals._default_executor
         if pool is None:
             pool = concurrent.futures.ThreadPoolExecutor(thread_name_prefix="asyncio")
-            self._default_executor = pool
+            internals._default_executor = pool
         cf = pool.submit(func, *args)
-        af: asyncio.Future[Any] = self.create_future()
+        af: asyncio.Future[T] = self.create_future()
         self._workers.append((cf, af))
-        cf.add_done_callback(lambda _f: self._write_to_self())  # type: ignore[attr-defined]
+        cf.add_done_callback(lambda _f: internals._write_to_self())
         return af
 
     def _deliver_oldest(self) -> None:

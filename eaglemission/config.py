@@ -75,7 +75,7 @@ class CameraSection(StrictModel):
     def to_model(self, camera_id: str) -> CameraModel:
         """The :class:`CameraModel` this section describes (lens or calibration file)."""
         mount = CameraMount(self.mount.roll_deg, self.mount.pitch_deg, self.mount.yaw_deg,
-                            tuple(self.mount.lever_arm_m))  # type: ignore[arg-type]
+                            self.mount.lever_arm_m)
         if self.calibration_file is not None:
             from eaglemission.calibration import load_calibration
 
@@ -265,7 +265,7 @@ class MissionFile(StrictModel):
 # ---------------------------------------------------------------------------------------------
 # YAML loading
 # ---------------------------------------------------------------------------------------------
-class _UniqueKeyLoader(yaml.SafeLoader):  # type: ignore[misc]
+class _UniqueKeyLoader(yaml.SafeLoader):
     """SafeLoader that rejects duplicate keys (yaml.safe_load keeps the last silently)."""
 
 
@@ -388,10 +388,10 @@ def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
 
 def _detector_has(name: Any, field_name: str) -> bool:
     try:
-        cls = registry.get("detectors", str(name))
+        model = registry.config_model("detectors", str(name))
     except PluginError:
         return False
-    return field_name in getattr(cls.Config, "model_fields", {})  # type: ignore[attr-defined]
+    return field_name in model.model_fields
 
 
 def validate_mapping(data: Any, *, source: str = "<config>", check_plugins: bool = True,

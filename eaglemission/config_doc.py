@@ -99,8 +99,7 @@ def _plugin_params(lines: list[str]) -> None:
         for name, ep in sorted(registry.available(role).items()):
             if not ep.value.startswith("eaglemission."):
                 continue
-            cls = registry.get(role, name)
-            _walk(lines, cls.Config, f"{role} / {name}", level="###")
+            _walk(lines, registry.config_model(role, name), f"{role} / {name}", level="###")
 
 
 def schema_markdown() -> str:

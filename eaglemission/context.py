@@ -31,7 +31,8 @@ class SharedContext:
         with self._lock:
             if key not in self._items:
                 self._items[key] = factory()
-            return self._items[key]  # type: ignore[no-any-return]
+            value: T = self._items[key]
+            return value
 
     def get(self, key: str, default: Any = None) -> Any:
         with self._lock:

@@ -227,10 +227,10 @@ def refine_homography(
     valid = cv2.erode(valid, np.ones((5, 5), np.uint8))
     roi = np.ascontiguousarray(wg[y0:y1, x0:x1])
     if method == "sift":
-        det = cv2.SIFT_create(nfeatures=max_features)  # type: ignore[attr-defined]  # cv2's stubs omit the feature factories
+        det = getattr(cv2, "SIFT_create")(nfeatures=max_features)  # noqa: B009 - cv2's stubs omit the feature factories
         norm = cv2.NORM_L2
     else:
-        det = cv2.ORB_create(nfeatures=max_features)  # type: ignore[attr-defined]  # cv2's stubs omit the feature factories
+        det = getattr(cv2, "ORB_create")(nfeatures=max_features)  # noqa: B009 - cv2's stubs omit the feature factories
         norm = cv2.NORM_HAMMING
     kp_w, des_w = det.detectAndCompute(warped, valid)
     kp_r, des_r = det.detectAndCompute(roi, None)

@@ -232,15 +232,25 @@ class CameraModel:
         pixel_size_um: float = 3.75,
         resolution_px: tuple[int, int] = (1280, 960),
         mount: CameraMount | None = None,
-        **kwargs: object,
+        distortion: tuple[float, ...] = (),
+        shutter: Shutter = "global",
+        exposure_s: float = 0.005,
     ) -> CameraModel:
         w, h = resolution_px
         K = intrinsics_from_lens(focal_length_mm, pixel_size_um, w, h)
-        return cls(camera_id, w, h, K, pixel_size_um=pixel_size_um,
-                   focal_length_mm=focal_length_mm, mount=mount or CameraMount(), **kwargs)  # type: ignore[arg-type]
+        return cls(camera_id, w, h, K, distortion=tuple(distortion), pixel_size_um=pixel_size_um,
+                   focal_length_mm=focal_length_mm, shutter=shutter, exposure_s=exposure_s,
+                   mount=mount or CameraMount())
 
-    def with_(self, **changes: object) -> CameraModel:
-        return replace(self, **changes)  # type: ignore[arg-type]
+    def with_(self, *, K: Mat3 | None = None, mount: CameraMount | None = None,
+              distortion: tuple[float, ...] | None = None,
+              focal_length_mm: float | None = None) -> CameraModel:
+        """A copy with some of the intrinsics, mount or distortion replaced."""
+        return replace(self, K=self.K if K is None else K,
+                       mount=self.mount if mount is None else mount,
+                       distortion=self.distortion if distortion is None else distortion,
+                       focal_length_mm=(self.focal_length_mm if focal_length_mm is None
+                                        else focal_length_mm))
 
     # -- intrinsics -----------------------------------------------------------------------------
     @property

@@ -209,7 +209,7 @@ class RunRecorder:
         self._thread.start()
         for cid, model in (models or {}).items():
             self.write_camera_model(model if model.camera_id == cid
-                                    else model.with_(camera_id=cid))
+                                    else dataclasses.replace(model, camera_id=cid))
 
     def __enter__(self) -> RunRecorder:
         return self
@@ -221,7 +221,7 @@ class RunRecorder:
         """Write every camera's model (``<camera_id>/camera.json``)."""
         for cid, model in models.items():
             self.write_camera_model(model if model.camera_id == cid
-                                    else model.with_(camera_id=cid))
+                                    else dataclasses.replace(model, camera_id=cid))
 
     def write_camera_model(self, model: CameraModel) -> None:
         d = self.run_dir / model.camera_id

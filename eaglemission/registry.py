@@ -128,7 +128,7 @@ def _unknown(role: str, name: str) -> PluginError:
     )
 
 
-def get(role: str, name: str) -> type:
+def get(role: str, name: str) -> type[Any]:
     """Import the named plugin class and check it against the role's Protocol."""
     _check_role(role)
     eps = available(role)
@@ -136,7 +136,7 @@ def get(role: str, name: str) -> type:
         raise _unknown(role, name)
     ep = eps[name]
     try:
-        cls = ep.load()
+        cls: type[Any] = ep.load()
     except ImportError as exc:
         raise PluginError(f"{role[:-1]} plugin {name!r} ({ep.value}) cannot be imported: {exc}") from exc
     except Exception as exc:  # a broken third-party plugin must not crash the CLI
@@ -150,24 +150,30 @@ def get(role: str, name: str) -> type:
             f"{role[:-1]} plugin {name!r} ({ep.value}) does not conform to "
             f"{PROTOCOLS[role].__name__}: " + "; ".join(problems)
         )
-    return cls  # type: ignore[no-any-return]
+    return cls
+
+
+def config_model(role: str, name: str) -> type[BaseModel]:
+    """The plugin's params model (its ``Config``; conformance checked it is a pydantic model)."""
+    model: type[BaseModel] = get(role, name).Config
+    return model
 
 
 def validate_params(role: str, name: str, params: Mapping[str, Any] | None, *, path: str) -> BaseModel:
     """Validate a plugin's params with its own Config model; errors carry the YAML path."""
-    cls = get(role, name)
+    model = config_model(role, name)
     try:
-        return cls.Config.model_validate(dict(params or {}))  # type: ignore[attr-defined,no-any-return]
+        return model.model_validate(dict(params or {}))
     except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, prefix=path, model=cls.Config)) from None  # type: ignore[attr-defined]
+        raise ConfigError(format_validation_error(exc, prefix=path, model=model)) from None
 
 
 def load(role: str, name: str, params: Mapping[str, Any] | BaseModel | None = None, **context: Any) -> Any:
     """Load, validate and construct a plugin: ``cls(config=cls.Config(**params), **context)``."""
     cls = get(role, name)
     if isinstance(params, BaseModel):
-        if not isinstance(params, cls.Config):  # type: ignore[attr-defined]
-            raise PluginError(f"params for {name!r} must be {cls.Config.__name__}")  # type: ignore[attr-defined]
+        if not isinstance(params, cls.Config):
+            raise PluginError(f"params for {name!r} must be {cls.Config.__name__}")
         config = params
     else:
         config = validate_params(role, name, params, path=f"{role}.{name}.params")
@@ -185,7 +191,7 @@ def describe(role: str) -> list[PluginInfo]:
     for name, ep in sorted(available(role).items()):
         try:
             cls = get(role, name)
-            infos.append(PluginInfo(role, name, ep.value, cls.description))  # type: ignore[attr-defined]
+            infos.append(PluginInfo(role, name, ep.value, str(cls.description)))
         except PluginError as exc:
             infos.append(PluginInfo(role, name, ep.value, "", error=str(exc)))
     return infos

@@ -34,7 +34,6 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import cv2
 import numpy as np
 from eaglemission.estimators.pnp_refine import (
-    _refine_kernel,  # noqa: F401 - the loader tests/core/test_kernels.py looks up here
     refine_pose,
     reprojection_errors,
 )

@@ -33,6 +33,15 @@ from eaglemission.config import MissionFile, SafeAction, SafetyConfig, StrictMod
 log = logging.getLogger(__name__)
 
 FinalAction = Literal["hold", "return", "land", "release", "none"]
+FINAL_ACTIONS: tuple[FinalAction, ...] = ("hold", "return", "land", "release", "none")
+
+
+def final_action(name: str) -> FinalAction:
+    """``name`` as a :data:`FinalAction`; ValueError naming the allowed ones otherwise."""
+    for a in FINAL_ACTIONS:
+        if a == name:
+            return a
+    raise ValueError(f"action: must be one of {', '.join(FINAL_ACTIONS)}, got {name!r}")
 
 
 class MissionState(enum.Enum):
@@ -377,7 +386,7 @@ class Snapshot:
     command_failed: str = ""
     interrupt_reason: str = ""
     """The operator asked for a stop (Ctrl-C / SIGTERM): the reason, "" if not."""
-    interrupt_action: str = "return"
+    interrupt_action: FinalAction = "return"
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -492,7 +501,7 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
         return "none" if on_ground else a
 
     if s.interrupt_reason:
-        return Abort(s.interrupt_reason, act(s.interrupt_action))  # type: ignore[arg-type]
+        return Abort(s.interrupt_reason, act(s.interrupt_action))
     if s.link_lost_s > s.link_loss_timeout_s and not on_ground:
         return Abort(f"link lost for {s.link_lost_s:.1f} s", act(safety.link_loss_action))
     if not s.gps_ok and not on_ground:

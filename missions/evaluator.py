@@ -64,7 +64,8 @@ class Evaluation:
     def as_dict(self) -> dict[str, Any]:
         from eaglemission.missions.log import to_jsonable
 
-        return to_jsonable(self)  # type: ignore[no-any-return]
+        out: dict[str, Any] = to_jsonable(self)
+        return out
 
 
 def _state_at(traj: Sequence[VehicleState], t_ns: int) -> VehicleState:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import enum
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -171,14 +172,15 @@ def plausible_size(det: Detection, model: CameraModel, state: VehicleState | Non
 
 def select_detection(result: DetectionResult, predicted_px: tuple[float, float] | None,
                      width_px: int, height_px: int, border_px: float, gate_px: float,
-                     plausible: object = None, allow_cut: bool = False) -> Detection | None:
+                     plausible: Callable[[Detection], bool] | None = None,
+                     allow_cut: bool = False) -> Detection | None:
     """The detection to use: the one nearest the predicted target pixel when there is a
     prediction (within ``gate_px``), else the best-ranked; truncated ones (unless
     ``allow_cut``) and (with ``plausible``, a predicate) ones of an impossible size are
     skipped."""
     dets = [d for d in result.detections
             if (allow_cut or not touches_border(d, width_px, height_px, border_px))
-            and (plausible is None or plausible(d))]  # type: ignore[operator]
+            and (plausible is None or plausible(d))]
     if not dets:
         return None
     if predicted_px is not None and np.isfinite(predicted_px).all():
@@ -213,22 +215,24 @@ class Perception:
 
         def plausible(d: Detection) -> bool:
             return (plausible_size(d, model, state, self.target, *p.size_ratio_range)
-                    and (not check_colour or tracker.matches(frame, d)))  # type: ignore[union-attr]
+                    and (tracker is None or not check_colour or tracker.matches(frame, d)))
 
         allow_cut = req.close_range and tools.fitter is not None and p.plane_fit \
             and req.fit_hint is not None
         det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
                                p.image_border_px, gate_px, plausible, allow_cut=allow_cut)
+        track_px = req.predicted_px
         track = (req.close_range and p.colour_track and tracker is not None
-                 and req.predicted_px is not None and bool(np.isfinite(req.predicted_px).all()))
+                 and track_px is not None and bool(np.isfinite(track_px).all()))
         tracked = False
-        if det is None and track:
-            det = tracker.track(frame, req.predicted_px)  # type: ignore[union-attr,arg-type]
+        if det is None and track and tracker is not None and track_px is not None:
+            det = tracker.track(frame, track_px)
             tracked = det is not None
         out = self._estimate(det, req, tools, tracked)
-        if track and not tracked and det is not None and out[0] is None:
+        if (track and not tracked and det is not None and out[0] is None
+                and tracker is not None and track_px is not None):
             # the detector's region does not fit the target: try its colour region
-            alt = tracker.track(frame, req.predicted_px)  # type: ignore[union-attr,arg-type]
+            alt = tracker.track(frame, track_px)
             alt_out = self._estimate(alt, req, tools, True)
             if alt_out[0] is not None:
                 det, out, tracked = alt, alt_out, True

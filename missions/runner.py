@@ -33,11 +33,13 @@ from eaglemission.missions.approach import (
     ApproachConfig,
     ApproachMachine,
     Cameras,
+    FinalAction,
     Goal,
     MissionState,
     Snapshot,
     StatePolicy,
     failsafe,
+    final_action,
 )
 from eaglemission.missions.camera_pump import CameraPump
 from eaglemission.missions.log import MissionLog
@@ -107,7 +109,7 @@ class MissionRunner:
         self.actuator = Actuator(cfg, params, self.vehicle, clock, mission_log, self.guidance,
                                  grasp_callback)
         self.actuator.on_grasp_done = self._wake_machine_now
-        self._interrupt: tuple[str, str] | None = None
+        self._interrupt: tuple[str, FinalAction] | None = None
         self._stopping = False
         self._wake_setpoint = asyncio.Event()
         self._wake_machine = asyncio.Event()
@@ -146,7 +148,7 @@ class MissionRunner:
         """Stop now with ``action`` (the operator's Ctrl-C): the machine aborts at its next
         tick; the actuator carries the action out through the envelope and waits for it."""
         if self._interrupt is None:
-            self._interrupt = (reason, action)
+            self._interrupt = (reason, final_action(action))
             self.actuator.settle_s = min(self.p.settle_timeout_s,
                                          self.cfg.safety.interrupt_timeout_s)
             self._wake_machine.set()

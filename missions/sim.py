@@ -32,7 +32,7 @@ def effective_vehicle_config(cfg: MissionFile) -> Any:
     from eaglemission import registry
 
     cls = registry.get("vehicles", "simulated")
-    v = cls(cls.Config.model_validate(dict(cfg.vehicle.params)), safety=cfg.safety)  # type: ignore[attr-defined]
+    v = cls(cls.Config.model_validate(dict(cfg.vehicle.params)), safety=cfg.safety)
     s = cfg.safety
     rtl = max(s.min_altitude_m + 1.0, min(cfg.mission.cruise_altitude_m, s.max_altitude_m - 1.0))
     return v.config.model_copy(update={"rtl_return_altitude_m": rtl})

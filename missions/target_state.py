@@ -18,7 +18,7 @@ re-acquired somewhere else, e.g. after a large estimate drift).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +47,11 @@ class FilteredTarget:
     std_m: XYZ
     age_s: float
     updates: int
+
+
+def _xyz(values: Iterable[float]) -> XYZ:
+    a, b, c = values
+    return (a, b, c)
 
 
 def predict_covariance(P: np.ndarray, dt_s: float, process_noise_mps: float) -> np.ndarray:
@@ -143,7 +148,7 @@ class TargetFilter:
         x = self._x
         return FilteredTarget(
             (float(x[0]), float(x[1]), float(x[2])),
-            tuple(math.sqrt(max(0.0, float(v))) for v in np.diag(P)),  # type: ignore[arg-type]
+            _xyz(math.sqrt(max(0.0, float(v))) for v in np.diag(P)),
             max(0.0, (t_ns - self._t_update_ns) * 1e-9),
             self.updates,
         )

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from eaglemission.missions.approach import StatePolicy
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.tracking import TargetTracking
 
@@ -20,7 +21,7 @@ class TelemetryWatch:
     """Reads ``vehicle.state()`` every 20 ms (see the module docstring)."""
 
     def __init__(self, vehicle: Vehicle, clock: Clock, log: MissionLog, track: TargetTracking,
-                 *, policy: Callable[[], object], state_name: Callable[[], str],
+                 *, policy: Callable[[], StatePolicy], state_name: Callable[[], str],
                  on_telemetry: Callable[[VehicleState], None] | None = None) -> None:
         self.vehicle, self.clock, self.log, self.track = vehicle, clock, log, track
         self.policy, self.state_name, self.on_telemetry = policy, state_name, on_telemetry
@@ -55,7 +56,7 @@ class TelemetryWatch:
                 self.on_telemetry(vs)
             if vs.timestamp_ns != last_range_ns:
                 last_range_ns = vs.timestamp_ns
-                self.track.use_rangefinder(vs, self.policy())  # type: ignore[arg-type]
+                self.track.use_rangefinder(vs, self.policy())
             if now - last_log >= LOG_EVERY_NS:
                 last_log = now
                 plane = self.track.plane
