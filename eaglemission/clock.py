@@ -132,7 +132,7 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         return len(self._workers)
 
     def run_in_executor(self, executor: concurrent.futures.Executor | None,
-                        func: Callable[[Unpack[Ts]], T], *args: Unpack[Ts]) -> asyncio.Future[T]:
+                        func: Callable[[Unpack[Ts]], T], *args: *Ts) -> asyncio.Future[T]:
         internals: Any = self  # asyncio's private selector-loop API (not in typeshed)
         internals._check_closed()
         pool: concurrent.futures.Executor | None = executor or internals._default_executor
