@@ -122,6 +122,21 @@ def load_detectors(spec_text: str, params: list[str]) -> list[tuple[str, str, di
     return out
 
 
+def target_image(spec: str) -> np.ndarray:
+    """``--target-image``: an image file, or ``colour``: a patch of the mission's target colour."""
+    if spec == "colour":
+        from eaglemission.config import load_config
+
+        bgr = load_config(check_plugins=False).target.color_bgr
+        if bgr is None:
+            raise SystemExit("error: configs/sitl_synthetic.yaml has no target.color_bgr")
+        return np.full((24, 40, 3), bgr, np.uint8)
+    img = cv2.imread(spec)
+    if img is None:
+        raise SystemExit(f"error: --target-image {spec}: not an image")
+    return img
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--data", type=Path, default=GROUND)
@@ -136,6 +151,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sites", nargs="*", default=None, help="only these site folders")
     p.add_argument("--seed", type=int, default=3)
     p.add_argument("--per-photo", action="store_true", help="also print each photo's figures")
+    p.add_argument("--target-image", default=None, metavar="PATH|colour",
+                   help="give the detectors an example image of the target (context "
+                        "`appearance`): an image file, or `colour` = a 24 x 40 px patch of "
+                        "configs/sitl_synthetic.yaml's target.color_bgr")
     a = p.parse_args(argv)
     cv2.setNumThreads(1)
     try:
@@ -152,8 +171,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: no NAME.jpg + NAME.yaml photos under {a.data}", file=sys.stderr)
         return 2
     w, h = (int(v) for v in a.size.lower().split("x"))
+    context = {}
+    if a.target_image is not None:
+        context["appearance"] = target_image(a.target_image)
     try:
-        dets = [(label, registry.load("detectors", name, prm)) for label, name, prm
+        dets = [(label, registry.load("detectors", name, prm, **context)) for label, name, prm
                 in load_detectors(a.detectors, a.params)]
     except EagleMissionError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -65,6 +65,7 @@ from eaglemission.detectors.cli import (  # noqa: E402
     frame_time_ns,
     read_gt,
 )
+from eaglemission.detectors.dtdmi.detector import appearance_rerank  # noqa: E402
 from eaglemission.detectors.metrics import CurveAccumulator, normalize_map  # noqa: E402
 from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: E402
 
@@ -75,15 +76,32 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 DATA = {"uav": SHARED / "uav_tracking", "davis": SHARED / "video_saliency" / "DAVIS2016"}
 FPS = {"uav": 10.0, "davis": 24.0}  # UAV123@10fps; the UAVDT/DTB70 clips are treated alike
+VERSION = 3  # bump when the detector code changes what a configuration computes
 
 
 # ---------------------------------------------------------------------------------------------
 # Grids
 # ---------------------------------------------------------------------------------------------
 def grid_aerial() -> list[dict[str, Any]]:
-    """The aerial preset's grid: block contrast scale and luminance weight, S_M gain (0: no
-    dynamic part), colour cue weight, output saturation; regions: peak fraction, floor,
-    elongation."""
+    """The aerial preset's grid: block contrast scale and luminance weight, colour cue weight,
+    output saturation; regions: peak fraction. Fixed beforehand (docs/paper_choices.md, "aerial
+    preset"): the S_M gain (2.5: S_M's median frame maximum on the block cue's scale), the
+    regions' floor (20: it only has to keep empty frames silent) and elongation limit (5: a
+    target is compact)."""
+    out = []
+    for rad, lw, cw, sat in itertools.product((0.004, 0.0055, 0.008), (0.3, 0.6), (0.0, 1.0),
+                                              (1.0, 3.0)):
+        params = {"preset": "aerial", "block_radius_frac": rad, "block_luminance_weight": lw,
+                  "colour_weight": cw, "saturation": sat, "dynamic_gain": 2.5}
+        regions = [{"peak_fraction": pf, "adaptive_floor": 20, "max_aspect": 5.0}
+                   for pf in (0.7, 0.8, 0.9)]
+        out.append({"params": params, "regions": regions})
+    return out
+
+
+def grid_aerial_round1() -> list[dict[str, Any]]:
+    """The first round (15.6 % out of fold): also the S_M gain (0: no dynamic part), the floor
+    and the elongation limit free; the choice flipped with the held-out sequences."""
     out = []
     for rad, lw, gain, cw, sat in itertools.product((0.004, 0.0055, 0.008), (0.3, 0.6),
                                                     (0.0, 2.5, 4.0), (0.0, 1.0), (1.0, 3.0)):
@@ -98,31 +116,35 @@ def grid_aerial() -> list[dict[str, Any]]:
 
 
 def grid_aerial_appearance() -> list[dict[str, Any]]:
-    """With the target image: the back-projection's prior and the saliency's weight."""
+    """With the target image: the back-projection's prior, the saliency's weight in the map
+    and the exponent of the region re-ranking by colour histogram (0: off)."""
     out = []
-    for prior, w in itertools.product((0.003, 0.01, 0.03), (0.0, 0.05, 0.1, 0.25)):
+    for prior, w, gamma in itertools.product((0.03, 0.1), (0.1, 0.25), (0.0, 4.0, 8.0)):
         params = {"preset": "aerial", "appearance_prior": prior,
-                  "appearance_saliency_weight": w}
-        regions = [{"peak_fraction": pf, "adaptive_floor": fl}
-                   for pf in (0.6, 0.7, 0.8) for fl in (20, 40)]
+                  "appearance_saliency_weight": w, "appearance_rank_exponent": gamma}
+        regions = [{"peak_fraction": pf} for pf in (0.6, 0.7, 0.8)]
         out.append({"params": params, "regions": regions})
     return out
 
 
 def grid_default() -> list[dict[str, Any]]:
-    """The default preset's grid on DAVIS: block contrast weight, static exponent, smoothing,
-    centre weight (max F does not depend on the regions)."""
+    """The default preset's grid on DAVIS: the block contrast cue added after Eq. (15) (weight 0:
+    the previous default), the S_s exponent (0: S_s left out), smoothing, centre weight (max F
+    does not depend on the regions)."""
     out = []
-    for bw, se, blur, cs in itertools.product((0.0, 0.5, 1.0), (0.5, 1.0), (0.02, 0.03),
+    for bw, se, blur, cs in itertools.product((0.0, 0.25, 0.5), (0.0, 0.5), (0.02, 0.03),
                                               (0.25, 0.3)):
-        params = {"preset": "default", "block_weight": bw, "static_exponent": se,
-                  "blur_sigma_frac": blur, "centre_sigma_frac": cs}
+        params = {"preset": "default", "static_exponent": se, "blur_sigma_frac": blur,
+                  "centre_sigma_frac": cs, "downscale": 1}
+        if bw > 0:
+            params.update({"block_weight": bw, "block_fusion": "add", "block_radius_frac": 0.01,
+                           "block_luminance_weight": 0.5})
         out.append({"params": params, "regions": [{}]})
     return out
 
 
-GRIDS = {"aerial": grid_aerial, "aerial_appearance": grid_aerial_appearance,
-         "default": grid_default}
+GRIDS = {"aerial": grid_aerial, "aerial_round1": grid_aerial_round1,
+         "aerial_appearance": grid_aerial_appearance, "default": grid_default}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -225,6 +247,19 @@ def key_of(obj: Any) -> str:
     return hashlib.sha1(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def resolved_config(name: str, params: dict[str, Any]) -> dict[str, Any]:
+    """The validated config (with a DTDMI preset's resolved values): what the cache keys on."""
+    from dataclasses import asdict
+
+    from eaglemission.detectors.dtdmi.detector import DTDMIConfig, resolve
+
+    cfg = registry.validate_params("detectors", name, params, path="tune")
+    out = cfg.model_dump(mode="json")
+    if isinstance(cfg, DTDMIConfig):
+        out["resolved"] = asdict(resolve(cfg))
+    return out
+
+
 def make_detector(name: str, params: dict[str, Any], seq: Seq, use_image: bool) -> Any:
     ctx = {"appearance": seq.crop} if use_image and seq.crop is not None else {}
     return registry.load("detectors", name, params, **ctx)
@@ -238,9 +273,11 @@ def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: b
     ds = int(params.get("downscale", 2))
     params["downscale"] = 1  # the cached maps are made at the processing resolution
     regions_list = point.get("regions") or [{}]
-    base_regions = registry.load("detectors", name, params).config.regions.model_dump()
-    out_keys = [key_of({"kind": kind, "name": name, "params": point["params"], "regions": r,
-                        "image": use_image, "step": step}) for r in regions_list]
+    resolved = resolved_config(name, params)
+    base_regions = resolved["regions"]
+    out_keys = [key_of({"kind": kind, "name": name, "config": resolved, "regions": r,
+                        "ds": ds, "image": use_image, "step": step, "v": VERSION})
+                for r in regions_list]
     files = [cache / f"{k}.json" for k in out_keys]
     if all(f.is_file() for f in files):
         return [(r, {n: SeqScore.from_json(v) for n, v in json.loads(f.read_text()).items()})
@@ -265,8 +302,16 @@ def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: b
             sal_full = None
             if kind == "davis":
                 sal_full = cv2.resize(sal, (w, h), interpolation=cv2.INTER_LINEAR)
+            model = getattr(getattr(det, "engine", None), "appearance", None)
+            gamma = getattr(det.config, "appearance_rank_exponent", 0.0)
             for acc, rc in zip(accs, cfgs):
-                dets, t = find_regions(sal, rc)
+                if model is not None and gamma > 0:  # what DTDMIDetector.detect does
+                    wide = rc.model_copy(update={"max_detections": max(
+                        rc.max_detections, det.config.appearance_candidates)})
+                    dets, t = find_regions(sal, wide)
+                    dets = appearance_rerank(dets, small, model.q, gamma, rc.max_detections)
+                else:
+                    dets, t = find_regions(sal, rc)
                 acc.box.add(score_frame(DetectionResult(sal, dets, 0, "t", i, t), box))
                 if acc.curves is not None and seq.masks[i] is not None:
                     acc.curves.add(normalize_map(sal_full), seq.masks[i])
@@ -282,8 +327,9 @@ def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: b
 # ---------------------------------------------------------------------------------------------
 def run_full(kind: str, name: str, params: dict[str, Any], seq: Seq, use_image: bool,
              cache: Path) -> SeqScore:
-    k = key_of({"full": 1, "kind": kind, "name": name, "params": params, "image": use_image,
-                "seq": seq.name, "first": seq.first_scored})
+    resolved = resolved_config(name, params)
+    k = key_of({"full": 1, "kind": kind, "name": name, "config": resolved, "image": use_image,
+                "seq": seq.name, "first": seq.first_scored, "v": VERSION})
     f = cache / f"full_{k}.json"
     if f.is_file():
         return SeqScore.from_json(json.loads(f.read_text()))
@@ -329,6 +375,20 @@ def report_rows(kind: str, label: str, per_seq: dict[str, SeqScore], names: list
     return "| " + " | ".join(cells) + " |"
 
 
+def split_top_level(text: str) -> list[str]:
+    """``a,b@{"x":1,"y":2}`` -> ``["a", 'b@{"x":1,"y":2}']`` (commas inside braces kept)."""
+    out, depth, cur = [], 0, ""
+    for ch in text:
+        depth += (ch == "{") - (ch == "}")
+        if ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+        else:
+            cur += ch
+    out.append(cur.strip())
+    return [x for x in out if x]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("dataset", choices=sorted(DATA))
@@ -343,7 +403,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--references", default="sr,mission,centre_prior",
                     help="scored on the same frames: sr (+ the same regions as the chosen "
                          "configuration), mission (configs/sitl_synthetic.yaml's detector), "
-                         "centre_prior, or NAME@JSON")
+                         "centre_prior, NAME@JSON, or noimage:NAME@JSON (without the target "
+                         "image)")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eaglemission_tune"))
     ap.add_argument("--per-sequence", action="store_true", help="print the per-sequence table")
     a = ap.parse_args(argv)
@@ -409,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
                           a.target_image, a.cache)
     rows = {f"**{a.detector} tuned, out of fold**": oof}
     refs: dict[str, dict[str, SeqScore]] = {}
-    for ref in [r.strip() for r in a.references.split(",") if r.strip()]:
+    for ref in split_top_level(a.references):
         per: dict[str, SeqScore] = {}
         for n in names:
             point, regions = chosen[fold_of[n]]
@@ -428,11 +489,12 @@ def main(argv: list[str] | None = None) -> int:
             elif ref == "centre_prior":
                 label = "centre_prior"
                 per[n] = run_full(kind, "centre_prior", {}, by_name[n], False, a.cache)
-            else:
-                nm, _, js = ref.partition("@")
+            else:  # NAME@JSON, or noimage:NAME@JSON (without the target image)
+                plain = ref.startswith("noimage:")
+                nm, _, js = ref.removeprefix("noimage:").partition("@")
                 p = json.loads(js) if js else {}
                 label = ref
-                per[n] = run_full(kind, nm, p, by_name[n], a.target_image, a.cache)
+                per[n] = run_full(kind, nm, p, by_name[n], a.target_image and not plain, a.cache)
         refs[label] = per
     rows.update(refs)
     head_txt = ("| detector | best detection on target | on target per sequence: mean +- std "

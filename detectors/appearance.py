@@ -168,3 +168,23 @@ class AppearanceModel:
         if frame_hist is None:
             frame_hist = np.bincount(idx.ravel(), minlength=NBINS)
         return self.lut(frame_hist)[idx]
+
+
+def region_histogram(image: NDArray[np.uint8], corners_px: NDArray[np.floating], *,
+                     pool: bool = True) -> NDArray[np.float64]:
+    """Colour histogram (4096 bins, pooled like :func:`target_histogram`, sums to 1) of the
+    pixels inside the axis-aligned bounding box of a region's corners (all zeros if empty)."""
+    h, w = image.shape[:2]
+    c = np.asarray(corners_px, np.float64)
+    u0, v0 = max(0, int(np.ceil(c[:, 0].min()))), max(0, int(np.ceil(c[:, 1].min())))
+    u1, v1 = min(w, int(np.floor(c[:, 0].max())) + 1), min(h, int(np.floor(c[:, 1].max())) + 1)
+    if u1 <= u0 or v1 <= v0:
+        return np.zeros(NBINS)
+    hist = np.bincount(quantize_bgr(image[v0:v1, u0:u1]).ravel(), minlength=NBINS)
+    return frame_histogram(hist, pool=pool)
+
+
+def bhattacharyya(p: NDArray[np.floating], q: NDArray[np.floating]) -> float:
+    """Bhattacharyya coefficient ``sum sqrt(p q)`` of two distributions (1: identical, 0:
+    disjoint): how well a region's colour mixture matches the example's."""
+    return float(np.sqrt(np.asarray(p, np.float64) * np.asarray(q, np.float64)).sum())
