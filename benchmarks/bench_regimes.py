@@ -20,6 +20,7 @@ Usage::
     python benchmarks/bench_regimes.py [--resolution 640x480] [--hover-s 5] [--configs ...]
         [--textures vegetation soil snow grass] [--camera wide|narrow] [--alt-m 5]
         [--target-north-m 22] [--target-east-m 1.5] [--per-texture] [--light-gain 1]
+        [--target-image colour]
 
 Rows are summed over the ground textures (``--per-texture`` also prints each one). The narrow
 camera (12 mm) sees the ground 6-13 m ahead from 5 m; use it closer in, e.g. ``--camera narrow
@@ -56,6 +57,8 @@ G = 9.81
 
 DEFAULT_CONFIGS = [
     '{"preset": "field"}',
+    '{"preset": "field", "use_dynamic": false}',
+    '{"preset": "aerial"}',
     '{"preset": "default", "centre_sigma_frac": 0}',
     '{"detector": "ft"}',
     '{"detector": "mss"}',
@@ -116,11 +119,11 @@ def peak_ratio(sal, poly, margin_px: float) -> float:
     return inside / outside if outside > 0 else (np.inf if inside > 0 else 0.0)
 
 
-def make_detector(spec: str):
+def make_detector(spec: str, appearance=None):
     over = json.loads(spec)
     name = over.pop("detector", "dtdmi")
     cls = registry.get("detectors", name)
-    return cls(cls.Config(**over))
+    return cls(cls.Config(**over), **({"appearance": appearance} if appearance is not None else {}))
 
 
 def main() -> None:
@@ -139,6 +142,9 @@ def main() -> None:
     ap.add_argument("--per-texture", action="store_true")
     ap.add_argument("--light-gain", type=float, default=1.0, help="scene lighting gain")
     ap.add_argument("--configs", nargs="*", default=DEFAULT_CONFIGS)
+    ap.add_argument("--target-image", choices=["colour"], default=None,
+                    help="give the detectors a 24 x 40 px patch of the target's colour as their "
+                         "example image (context `appearance`)")
     a = ap.parse_args()
     cv2.setNumThreads(1)
     w, h = (int(v) for v in a.resolution.lower().split("x"))
@@ -160,7 +166,9 @@ def main() -> None:
         world = SyntheticWorld(sim, target, seed=a.seed)
         empty = SyntheticWorld(sim.model_copy(update={"target_north_m": -30.0}), target,
                                seed=a.seed)
-        dets = {spec: (make_detector(spec), make_detector(spec)) for spec in a.configs}
+        app = (np.full((24, 40, 3), target.color_bgr, np.uint8)
+               if a.target_image == "colour" else None)
+        dets = {spec: (make_detector(spec, app), make_detector(spec, app)) for spec in a.configs}
         run_texture(a, model, world, empty, dets, tallies, per_tex, tex)
     print(f"# bench_regimes: {w}x{h} {a.camera} camera at {a.alt_m:g} m, cruise {CRUISE_S:g} s "
           f"at {CRUISE_MPS:g} m/s, decel {DECEL_S:g} s, hover {a.hover_s:g} s, {FPS:g} fps, "

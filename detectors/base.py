@@ -3,6 +3,12 @@
 Subclasses implement ``_saliency(image, frame) -> float32 (H, W) in [0, 1]`` and, when they keep
 temporal state, ``_reset()``. ``detect`` validates the frame (dtype, shape, channels, size),
 resets on a resolution change, and hands the map to :func:`regions.find_regions`.
+
+Context: ``cls(config=..., **context)``; every detector accepts and ignores the keys it does not
+use (``camera_id`` from the runner, ...). ``appearance`` -- an example image of the target, BGR
+uint8 ``(H, W, 3)`` (a tight crop, or a photo on a plain background) or None -- is validated here
+and kept as ``self.appearance``; detectors that use it (``dtdmi``) build their model from it
+(:mod:`eaglemission.detectors.appearance`).
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ class SaliencyDetector:
     def __init__(self, config: BaseModel | None = None, **context: Any) -> None:
         self.config: Any = config if config is not None else self.Config()
         self._shape: tuple[int, int] | None = None
+        self.appearance: np.ndarray | None = validate_appearance(context.get("appearance"))
 
     # -- to implement ---------------------------------------------------------------------------
     def _saliency(self, image: np.ndarray, frame: Frame) -> Saliency:
@@ -102,3 +109,26 @@ def validate_image(image: Any) -> np.ndarray:
     if image.shape[0] < 8 or image.shape[1] < 8:
         raise InputError(f"image: must be at least 8x8 pixels, got {image.shape[1]}x{image.shape[0]}")
     return image
+
+
+def validate_appearance(image: Any) -> np.ndarray | None:
+    """The ``appearance`` context value as a contiguous BGR uint8 (H, W, 3) copy, or None.
+
+    Grey (H, W) images become 3-channel; anything else raises :class:`InputError` naming the
+    problem.
+    """
+    if image is None:
+        return None
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"appearance: must be a BGR uint8 numpy array, got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise InputError(f"appearance: must be uint8 (8-bit BGR or grey), got {image.dtype}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"appearance: must be (H, W, 3) BGR or (H, W) grey, got shape "
+                         f"{image.shape}")
+    if image.shape[0] < 3 or image.shape[1] < 3:
+        raise InputError(f"appearance: must be at least 3x3 pixels, got "
+                         f"{image.shape[1]}x{image.shape[0]}")
+    return np.ascontiguousarray(image).copy()

@@ -2,7 +2,9 @@
 
 ``bench`` scores detectors on folders laid out as ``<seq>/frames/*.jpg`` + ``<seq>/gt/*.png``
 (the layout of ../shared/data/video_saliency/DAVIS2016) with the per-image-mean protocol of
-:mod:`eaglemission.detectors.metrics`, and writes a markdown + JSON table and PR/ROC plots.
+:mod:`eaglemission.detectors.metrics`, and on ``<seq>/boxes.txt`` box annotations (the layout of
+../shared/data/uav_tracking) with the box metrics of :mod:`eaglemission.detectors.boxes`, and
+writes markdown + JSON tables and plots.
 ``detect`` runs one detector on a video or an image folder and writes overlay images (heat map,
 thresholded regions, MBRs with their corner order). Detectors are loaded only through
 ``eaglemission.registry.load("detectors", name, params)``. See docs/detectors.md.
@@ -24,6 +26,16 @@ from typing import Any
 
 import cv2
 import numpy as np
+from eaglemission.detectors.boxes import (
+    BoxFormatError,
+    BoxScores,
+    box_from_mask,
+    box_valid,
+    crop_box,
+    parse_boxes,
+    score_frame,
+    spread,
+)
 from eaglemission.detectors.metrics import CurveAccumulator, SequenceScores, normalize_map, quantize
 from eaglemission.detectors.regions import to_uint8
 
@@ -147,33 +159,94 @@ def parse_detector_specs(detectors: str, params: Sequence[str]) -> list[Detector
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BenchSequence:
+    """One sequence: its frames, per-frame mask files and/or boxes (``boxes.txt``).
+
+    ``gts[i]`` is the mask of frame ``i`` (None: no mask); ``boxes`` is (N, 4) pixel edges
+    (:func:`eaglemission.detectors.boxes.parse_boxes`), a NaN row for a frame without the target,
+    or None when the sequence has no ``boxes.txt`` (then mask sequences are box-scored against
+    each mask's bounding box).
+    """
+
     name: str
     frames: tuple[Path, ...]
     gts: tuple[Path | None, ...]  # same length; None: frame not annotated (run, not scored)
+    boxes: np.ndarray | None = field(default=None, compare=False)
+
+    @property
+    def has_masks(self) -> bool:
+        return any(g is not None for g in self.gts)
 
     @property
     def n_scored(self) -> int:
+        if self.boxes is not None:
+            return len(self.frames)
         return sum(g is not None for g in self.gts)
+
+    def head(self, n: int) -> BenchSequence:
+        """The first ``n`` frames."""
+        return BenchSequence(self.name, self.frames[:n], self.gts[:n],
+                             None if self.boxes is None else self.boxes[:n])
 
 
 def _images_in(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTS and p.is_file())
 
 
-def find_sequences(data: Path, only: Sequence[str] | None = None) -> list[BenchSequence]:
-    """Sequences of ``data`` (``<seq>/frames/*`` with ``<seq>/gt/<stem>.png``), sorted by name."""
+def _sequence_dirs(data: Path, max_depth: int = 3) -> dict[str, Path]:
+    """Folders holding a ``frames/`` subfolder, up to ``max_depth`` levels below ``data`` (the UAV
+    sets nest ``<dataset>/<seq>/``), named by their path relative to ``data``; ``data`` itself
+    when it is one sequence."""
+    if (data / "frames").is_dir():
+        return {data.name: data}
+    found: dict[str, Path] = {}
+
+    def walk(folder: Path, depth: int) -> None:
+        for p in sorted(folder.iterdir()):
+            if not p.is_dir() or p.name.startswith("."):
+                continue
+            if (p / "frames").is_dir():
+                found[p.relative_to(data).as_posix()] = p
+            elif depth < max_depth:
+                walk(p, depth + 1)
+
+    walk(data, 1)
+    return found
+
+
+def _select(found: dict[str, Path], only: Sequence[str], data: Path) -> dict[str, Path]:
+    """``--sequences`` items: a full name (``UAVDT/S0601``) or its last part (``S0601``)."""
+    chosen: dict[str, Path] = {}
+    missing = []
+    for s in only:
+        if s in found:
+            chosen[s] = found[s]
+            continue
+        tail = [k for k in found if k.rpartition("/")[2] == s]
+        if len(tail) == 1:
+            chosen[tail[0]] = found[tail[0]]
+        elif len(tail) > 1:
+            raise UsageError(f"--sequences: {s!r} is ambiguous in {str(data)!r}: "
+                             f"{', '.join(tail)}")
+        else:
+            missing.append(s)
+    if missing:
+        raise UsageError(f"--sequences: {', '.join(missing)} not found in {str(data)!r}; "
+                         f"available: {', '.join(found) or 'none'}")
+    return chosen
+
+
+def find_sequences(data: Path, only: Sequence[str] | None = None, *,
+                   box_origin: int = 1) -> list[BenchSequence]:
+    """Sequences of ``data``, sorted by name: ``<seq>/frames/*`` with ``<seq>/gt/<stem>.png``
+    masks and/or ``<seq>/boxes.txt`` (one ``x,y,w,h`` line per frame, ``box_origin``-based)."""
     if not data.exists():
         raise UsageError(f"--data {str(data)!r}: folder not found; give a folder of "
-                         f"<seq>/frames/*.jpg + <seq>/gt/*.png")
+                         f"<seq>/frames/*.jpg + <seq>/gt/*.png or <seq>/boxes.txt")
     if not data.is_dir():
         raise UsageError(f"--data {str(data)!r}: is a file, not a folder of sequences")
-    found = {p.name: p for p in sorted(data.iterdir()) if (p / "frames").is_dir()}
+    found = _sequence_dirs(data)
     if only:
-        missing = [s for s in only if s not in found]
-        if missing:
-            raise UsageError(f"--sequences: {', '.join(missing)} not found in {str(data)!r}; "
-                             f"available: {', '.join(found) or 'none'}")
-        found = {s: found[s] for s in only}
+        found = _select(found, only, data)
     if not found:
         raise UsageError(f"--data {str(data)!r}: no sequence folder with a frames/ subfolder")
     out = []
@@ -184,10 +257,22 @@ def find_sequences(data: Path, only: Sequence[str] | None = None) -> list[BenchS
         gt_dir = folder / "gt"
         gt_by_stem = {p.stem: p for p in _images_in(gt_dir)} if gt_dir.is_dir() else {}
         gts = tuple(gt_by_stem.get(f.stem) for f in frames)
-        if not any(g is not None for g in gts):
+        boxes = None
+        box_file = folder / "boxes.txt"
+        if box_file.is_file():
+            try:
+                boxes = parse_boxes(box_file.read_text(), origin=box_origin,
+                                    source=str(box_file))
+            except BoxFormatError as exc:
+                raise UsageError(str(exc)) from None
+            if len(boxes) != len(frames):
+                raise UsageError(f"sequence {name!r}: {str(box_file)!r} has {len(boxes)} "
+                                 f"box line(s) for {len(frames)} frame(s); write one x,y,w,h "
+                                 f"line (or nan,nan,nan,nan) per frame, in frame order")
+        if boxes is None and not any(g is not None for g in gts):
             raise UsageError(f"sequence {name!r}: no ground truth: expected "
-                             f"{str(gt_dir)!r}/<frame stem>.png")
-        out.append(BenchSequence(name, tuple(frames), gts))
+                             f"{str(gt_dir)!r}/<frame stem>.png or {str(box_file)!r}")
+        out.append(BenchSequence(name, tuple(frames), gts, boxes))
     return out
 
 
@@ -212,6 +297,34 @@ def frame_time_ns(index: int, fps: float) -> int:
     return T0_NS + round(index * 1e9 / fps)
 
 
+def first_frame_crop(seq: BenchSequence) -> tuple[int, np.ndarray]:
+    """(index, crop) of the first frame with a target box (``boxes.txt``, else the first
+    non-empty mask's bounding box): the example image of ``bench --target-image first-frame``."""
+    for i, fpath in enumerate(seq.frames):
+        box = None
+        if seq.boxes is not None:
+            box = seq.boxes[i]
+        elif seq.gts[i] is not None:
+            image = read_image(fpath)
+            box = box_from_mask(read_gt(seq.gts[i], image.shape[:2]))
+        if box is not None and box_valid(box):
+            try:
+                return i, crop_box(read_image(fpath), box)
+            except ValueError:
+                continue  # box outside the frame: try the next one
+    raise UsageError(f"sequence {seq.name!r}: no frame with a target box to crop the target "
+                     f"image from (--target-image first-frame)")
+
+
+def read_target_image(path: Path) -> np.ndarray:
+    """``--target-image PATH``: a BGR uint8 image (a tight crop or a photo on a plain
+    background)."""
+    if not path.is_file():
+        raise UsageError(f"--target-image {str(path)!r}: not found; give an image file (a tight "
+                         f"crop of the target, or a photo of it on a plain background)")
+    return read_image(path)
+
+
 # ---------------------------------------------------------------------------------------------
 # Bench
 # ---------------------------------------------------------------------------------------------
@@ -220,18 +333,31 @@ class DetectorRun:
     spec: DetectorSpec
     sequences: dict[str, SequenceScores] = field(default_factory=dict)
     overall: CurveAccumulator = field(default_factory=CurveAccumulator)
+    box_sequences: dict[str, BoxScores] = field(default_factory=dict)
+    box: BoxScores = field(default_factory=BoxScores)
     detections: int = 0
     frames: int = 0
-    hits: int = 0  # scored frames whose best detection's centre lies on the GT mask
+    hits: int = 0  # scored mask frames whose best detection's centre lies on the GT mask
     scored: int = 0
     time_s: list[float] = field(default_factory=list)
 
+    @property
+    def has_curves(self) -> bool:
+        return self.overall.n_frames > 0
+
 
 def run_detector_on_sequence(detector: Any, seq: BenchSequence, fps: float, run: DetectorRun,
-                             save_dir: Path | None, on_frame: Any = None) -> SequenceScores:
-    """Run one detector over a sequence (state reset first) and score it."""
+                             save_dir: Path | None, on_frame: Any = None, *,
+                             first_scored: int = 0) -> tuple[SequenceScores | None, BoxScores]:
+    """Run one detector over a sequence (state reset first) and score it.
+
+    Every frame is run (the detector's state sees the whole sequence); frames before
+    ``first_scored`` are not scored. Mask frames feed the curves (max F, AUC, MAE) and the box
+    metrics against the mask's bounding box; ``boxes.txt`` frames feed the box metrics.
+    """
     detector.reset()
     acc = CurveAccumulator()
+    boxes = BoxScores()
     for i, (fpath, gpath) in enumerate(zip(seq.frames, seq.gts)):
         image = read_image(fpath)
         frame = Frame(image, frame_time_ns(i, fps), "bench", i)
@@ -240,21 +366,28 @@ def run_detector_on_sequence(detector: Any, seq: BenchSequence, fps: float, run:
         run.time_s.append(time.perf_counter() - t)
         run.detections += len(result.detections)
         run.frames += 1
-        if gpath is not None:
-            sal01 = normalize_map(result.saliency)
-            gt = read_gt(gpath, image.shape[:2])
-            acc.add(sal01, gt)
-            run.scored += 1
-            run.hits += best_on_gt(result, gt)
-            if save_dir is not None:
-                out = save_dir / seq.name / f"{fpath.stem}.png"
-                out.parent.mkdir(parents=True, exist_ok=True)
-                cv2.imwrite(str(out), quantize(sal01))
+        if i >= first_scored:
+            box = None
+            if gpath is not None:
+                sal01 = normalize_map(result.saliency)
+                gt = read_gt(gpath, image.shape[:2])
+                acc.add(sal01, gt)
+                run.scored += 1
+                run.hits += best_on_gt(result, gt)
+                box = box_from_mask(gt)
+                if save_dir is not None:
+                    out = save_dir / seq.name / f"{fpath.stem}.png"
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    cv2.imwrite(str(out), quantize(sal01))
+            if seq.boxes is not None:
+                box = seq.boxes[i]
+            if box is not None:
+                boxes.add(score_frame(result, box))
         if on_frame is not None:
             on_frame()
-    scores = acc.scores()
     run.overall.merge(acc)
-    return scores
+    run.box.merge(boxes)
+    return (acc.scores() if acc.n_frames else None), boxes
 
 
 def best_on_gt(result: DetectionResult, gt: np.ndarray) -> bool:
@@ -269,30 +402,75 @@ def _fmt(x: float) -> str:
     return f"{x:.4f}"
 
 
+def _pct(x: float) -> str:
+    return "-" if math.isnan(x) else f"{100 * x:.1f}%"
+
+
 def markdown_table(runs: Sequence[DetectorRun], sequences: Sequence[str]) -> str:
-    """Overall table (with ratios to ``sr`` when it ran) and a per-sequence max-F table."""
-    ref = next((r for r in runs if r.spec.label == "sr"), None)
-    ref_f = ref.overall.scores().max_f if ref else None
-    lines = ["| detector | max F (beta^2=0.3) | AUC | MAE | max F / SR | frames | "
-             "detections/frame | best detection on GT | median ms/frame |",
+    """Curve tables (overall with ratios to ``sr`` when it ran, per-sequence max F) when any
+    sequence has masks, then the box tables (overall, per sequence, spread over sequences)."""
+    lines: list[str] = []
+    curve_seqs = [n for n in sequences if any(n in r.sequences for r in runs)]
+    if curve_seqs:
+        ref = next((r for r in runs if r.spec.label == "sr" and r.has_curves), None)
+        ref_f = ref.overall.scores().max_f if ref else None
+        lines += ["| detector | max F (beta^2=0.3) | AUC | MAE | max F / SR | frames | "
+                  "detections/frame | best detection on GT | median ms/frame |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for r in runs:
+            s = r.overall.scores()
+            ratio = f"{s.max_f / ref_f:.3f}" if ref_f else "-"
+            med = 1e3 * float(np.median(r.time_s)) if r.time_s else math.nan
+            lines.append(f"| {r.spec.label} | {_fmt(s.max_f)} | {_fmt(s.auc)} | {_fmt(s.mae)} | "
+                         f"{ratio} | {s.n_frames} | {r.detections / max(r.frames, 1):.2f} | "
+                         f"{r.hits / max(r.scored, 1):.3f} | {med:.1f} |")
+        lines += ["", "Per sequence, max F / AUC / MAE:", "",
+                  "| sequence | " + " | ".join(r.spec.label for r in runs) + " |",
+                  "|---|" + "---|" * len(runs)]
+        for name in curve_seqs:
+            cells = []
+            for r in runs:
+                s = r.sequences[name]
+                cells.append(f"{s.max_f:.3f} / {s.auc:.3f} / {s.mae:.3f}")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += box_tables(runs, sequences)
+    return "\n".join(lines) + "\n"
+
+
+def box_tables(runs: Sequence[DetectorRun], sequences: Sequence[str]) -> list[str]:
+    """Markdown lines of the box metrics (docs/detectors.md, "Box benchmarks")."""
+    lines = ["Box metrics (on target = centre inside the box grown 25 % a side; false = "
+             "detections whose centre misses it, per scored frame):", "",
+             "| detector | saliency peak on target | best detection on target | IoU of the best "
+             "| frames with any detection | false detections / frame | detections / frame | "
+             "target frames | on target per sequence: mean +- std (min-max) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in runs:
-        s = r.overall.scores()
-        ratio = f"{s.max_f / ref_f:.3f}" if ref_f else "-"
-        med = 1e3 * float(np.median(r.time_s)) if r.time_s else math.nan
-        lines.append(f"| {r.spec.label} | {_fmt(s.max_f)} | {_fmt(s.auc)} | {_fmt(s.mae)} | "
-                     f"{ratio} | {s.n_frames} | {r.detections / max(r.frames, 1):.2f} | "
-                     f"{r.hits / max(r.scored, 1):.3f} | {med:.1f} |")
-    lines += ["", "Per sequence, max F / AUC / MAE:", "",
-              "| sequence | " + " | ".join(r.spec.label for r in runs) + " |",
-              "|---|" + "---|" * len(runs)]
+        b = r.box
+        sp = spread([r.box_sequences[n].on_target_rate for n in sequences
+                     if n in r.box_sequences])
+        dpf = b.detections / b.frames if b.frames else math.nan
+        lines.append(f"| {r.spec.label} | {_pct(b.peak_rate)} | {_pct(b.on_target_rate)} | "
+                     f"{b.mean_iou:.3f} | {_pct(b.any_rate)} | {b.false_per_frame:.3f} | "
+                     f"{dpf:.2f} | {b.target_frames} | {_pct(sp['mean'])} +- "
+                     f"{_pct(sp['std'])} ({_pct(sp['min'])}-{_pct(sp['max'])}) |")
+    lines += ["", "Per sequence, best detection on target / frames with any / false per frame "
+              "(saliency peak on target):", "",
+              "| sequence | frames | " + " | ".join(r.spec.label for r in runs) + " |",
+              "|---|---|" + "---|" * len(runs)]
     for name in sequences:
+        first = next((r.box_sequences[name] for r in runs if name in r.box_sequences), None)
+        if first is None:
+            continue
         cells = []
         for r in runs:
-            s = r.sequences[name]
-            cells.append(f"{s.max_f:.3f} / {s.auc:.3f} / {s.mae:.3f}")
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+            b = r.box_sequences[name]
+            cells.append(f"{_pct(b.on_target_rate)} / {_pct(b.any_rate)} / "
+                         f"{b.false_per_frame:.2f} ({_pct(b.peak_rate)})")
+        lines.append(f"| {name} | {first.target_frames}/{first.frames} | " + " | ".join(cells)
+                     + " |")
+    return lines
 
 
 def plot_curves(runs: Sequence[DetectorRun], out: Path) -> list[Path]:
@@ -303,6 +481,9 @@ def plot_curves(runs: Sequence[DetectorRun], out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     paths = []
+    runs = [r for r in runs if r.has_curves]
+    if not runs:
+        return paths
     for kind in ("pr", "roc"):
         fig, ax = plt.subplots(figsize=(5.5, 5), dpi=120)
         for r in runs:
@@ -330,51 +511,121 @@ def plot_curves(runs: Sequence[DetectorRun], out: Path) -> list[Path]:
     return paths
 
 
+def plot_box_rates(runs: Sequence[DetectorRun], sequences: Sequence[str], out: Path) -> Path:
+    """Bars per sequence: best detection on target (filled) and false detections per frame
+    (hatched, right axis), one colour per detector."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in sequences if any(n in r.box_sequences for r in runs)] + ["overall"]
+    x = np.arange(len(names))
+    width = 0.8 / max(len(runs), 1)
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(max(6.0, 0.9 * len(names) + 2), 7), dpi=110,
+                                  sharex=True)
+    for k, r in enumerate(runs):
+        rates = [r.box_sequences[n].on_target_rate if n in r.box_sequences else math.nan
+                 for n in names[:-1]] + [r.box.on_target_rate]
+        false = [r.box_sequences[n].false_per_frame if n in r.box_sequences else math.nan
+                 for n in names[:-1]] + [r.box.false_per_frame]
+        ax.bar(x + (k - (len(runs) - 1) / 2) * width, rates, width, label=r.spec.label)
+        ax2.bar(x + (k - (len(runs) - 1) / 2) * width, false, width, label=r.spec.label)
+    ax.set(ylabel="best detection on target", ylim=(0, 1.02),
+           title="Box benchmark: on target (centre in the box grown 25 % a side)")
+    ax2.set(ylabel="false detections / frame")
+    ax2.set_xticks(x, names, rotation=45, ha="right", fontsize=8)
+    for a in (ax, ax2):
+        a.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p = out / "box_on_target.png"
+    fig.savefig(p)
+    plt.close(fig)
+    return p
+
+
 def results_json(runs: Sequence[DetectorRun], sequences: Sequence[BenchSequence], args: Any,
                  command: str) -> dict[str, Any]:
+    names = [s.name for s in sequences]
     out: dict[str, Any] = {
         "command": command,
         "protocol": ("per-image mean; each map min-max normalised per frame, quantised to 0..255, "
                      "thresholds t = 0..255 as map >= t; max F with beta^2 = 0.3 (Eq. 17); AUC "
                      "by trapezoids with (0,0) and (1,1); MAE on the normalised map; GT = mask >= 128"),
+        "box_protocol": ("on target: the best-ranked detection's centre inside the box grown "
+                         "25% of its size on each side; IoU of its rotated MBR with the box; "
+                         "saliency peak on target: the map's maximum reached inside the grown "
+                         "box; false: detections whose centre misses the grown box (all of a "
+                         "frame without the target), per scored frame; boxes.txt is "
+                         f"{getattr(args, 'box_origin', 1)}-based; mask sequences use each "
+                         "mask's bounding box"),
         "data": str(args.data),
         "fps": args.fps,
-        "sequences": {s.name: {"frames": len(s.frames), "scored": s.n_scored} for s in sequences},
+        "target_image": getattr(args, "target_image", None),
+        "unscored_head": getattr(args, "unscored_head", None),
+        "sequences": {s.name: {"frames": len(s.frames), "scored": s.n_scored,
+                               "annotation": "masks" if s.boxes is None else "boxes"}
+                      for s in sequences},
         "detectors": {},
     }
     for r in runs:
-        s = r.overall.scores()
-        out["detectors"][r.spec.label] = {
+        entry: dict[str, Any] = {
             "plugin": r.spec.name,
             "params": r.spec.params,
-            "overall": s.as_dict(),
             "detections_per_frame": r.detections / max(r.frames, 1),
-            "best_detection_on_gt": r.hits / max(r.scored, 1),
             "median_ms_per_frame": 1e3 * float(np.median(r.time_s)) if r.time_s else None,
-            "sequences": {k: v.as_dict() for k, v in r.sequences.items()},
-            "curves": {"precision": s.precision.round(6).tolist(),
-                       "recall": s.recall.round(6).tolist(), "fpr": s.fpr.round(6).tolist()},
+            "box": {"overall": r.box.as_dict(),
+                    "sequences": {k: v.as_dict() for k, v in r.box_sequences.items()},
+                    "on_target_spread": spread([r.box_sequences[n].on_target_rate
+                                                for n in names if n in r.box_sequences]),
+                    "false_per_frame_spread": spread([r.box_sequences[n].false_per_frame
+                                                      for n in names if n in r.box_sequences])},
         }
+        if r.has_curves:
+            s = r.overall.scores()
+            entry.update({
+                "overall": s.as_dict(),
+                "best_detection_on_gt": r.hits / max(r.scored, 1),
+                "sequences": {k: v.as_dict() for k, v in r.sequences.items()},
+                "curves": {"precision": s.precision.round(6).tolist(),
+                           "recall": s.recall.round(6).tolist(), "fpr": s.fpr.round(6).tolist()},
+            })
+        out["detectors"][r.spec.label] = entry
     return out
 
 
 def _bench_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", required=True, type=Path,
-                   help="folder of <seq>/frames/*.jpg + <seq>/gt/*.png (DAVIS layout)")
+                   help="folder of <seq>/frames/*.jpg + <seq>/gt/*.png (DAVIS layout) and/or "
+                        "<seq>/boxes.txt (one x,y,w,h line per frame, nan = no target); "
+                        "sequences may be nested (<dataset>/<seq>)")
     p.add_argument("--detectors", default="sr,ft,mss,centre_prior",
                    help="comma-separated detector names; NAME@VARIANT runs a variant "
                         "(e.g. dtdmi@literal = dtdmi with preset=literal)")
     p.add_argument("--params", nargs="*", default=[], metavar="DETECTOR:KEY=VALUE",
                    help="detector params, e.g. dtdmi:preset=literal ft:regions.threshold=otsu")
-    p.add_argument("--sequences", default=None, help="comma-separated subset of sequences")
+    p.add_argument("--sequences", default=None,
+                   help="comma-separated subset of sequences (full name or its last part)")
     p.add_argument("--fps", type=float, default=24.0,
                    help="frame rate for the frames' timestamps (DAVIS: 24)")
     p.add_argument("--out", type=Path, default=Path("bench_out"),
-                   help="folder for results.md, results.json, pr_curves.png, roc_curves.png")
+                   help="folder for results.md, results.json and the plots")
     p.add_argument("--save-maps", type=Path, default=None, metavar="DIR",
                    help="write each scored map as an 8-bit PNG to DIR/<detector>/<seq>/<stem>.png")
     p.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="only the first N frames of each sequence (quick checks)")
+    p.add_argument("--box-origin", type=int, choices=(0, 1), default=1,
+                   help="index of the first pixel in boxes.txt: 1 (MATLAB/OTB style, the UAV "
+                        "sets; default) or 0")
+    p.add_argument("--target-image", default=None, metavar="PATH|first-frame",
+                   help="an example image of the target for detectors that use one (context "
+                        "`appearance`): an image file, or `first-frame` = crop each sequence's "
+                        "first target box (its first 10%% of frames are then not scored)")
+    p.add_argument("--unscored-head", type=float, default=None, metavar="FRACTION",
+                   help="do not score the first FRACTION of each sequence's frames (default 0.1 "
+                        "with --target-image first-frame, else 0); give 0.1 to a run without "
+                        "the image to score the same frames")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -391,18 +642,29 @@ def run_bench(args: argparse.Namespace) -> int:
 
     if not (args.fps > 0 and math.isfinite(args.fps)):
         raise UsageError(f"--fps: must be > 0, got {args.fps}")
+    first_frame = args.target_image == "first-frame"
+    head = args.unscored_head if args.unscored_head is not None else (0.1 if first_frame else 0.0)
+    if not 0 <= head < 1:
+        raise UsageError(f"--unscored-head: must be in [0, 1), got {head}")
+    args.unscored_head = head
     only = [s.strip() for s in args.sequences.split(",") if s.strip()] if args.sequences else None
-    sequences = find_sequences(Path(args.data), only)
+    sequences = find_sequences(Path(args.data), only, box_origin=args.box_origin)
     if args.max_frames is not None:
         if args.max_frames < 1:
             raise UsageError(f"--max-frames: must be >= 1, got {args.max_frames}")
         n = args.max_frames
-        sequences = [BenchSequence(s.name, s.frames[:n], s.gts[:n]) for s in sequences]
+        sequences = [s.head(n) for s in sequences]
         empty = [s.name for s in sequences if s.n_scored == 0]
         if empty:
             raise UsageError(f"--max-frames {n}: no annotated frame left in {', '.join(empty)}")
+    fixed_image = None
+    if args.target_image is not None and not first_frame:
+        fixed_image = read_target_image(Path(args.target_image))
+    crops = {s.name: first_frame_crop(s) for s in sequences} if first_frame else {}
     specs = parse_detector_specs(args.detectors, args.params)
-    detectors = [registry.load("detectors", s.name, s.params) for s in specs]  # fail early
+    context = {"appearance": fixed_image} if fixed_image is not None else {}
+    detectors = [registry.load("detectors", s.name, s.params, **context)
+                 for s in specs]  # fail early
     console = Console(stderr=True)
     runs = [DetectorRun(s) for s in specs]
     total = sum(len(s.frames) for s in sequences) * len(specs)
@@ -414,21 +676,37 @@ def run_bench(args: argparse.Namespace) -> int:
             for seq in sequences:
                 progress.update(task, description=f"{spec.label:>16} {seq.name:<16}")
                 save = Path(args.save_maps) / spec.label if args.save_maps else None
-                run.sequences[seq.name] = run_detector_on_sequence(
-                    det, seq, args.fps, run, save, on_frame=lambda: progress.advance(task))
+                first_scored = math.ceil(head * len(seq.frames) - 1e-9)
+                if first_frame:
+                    i0, crop = crops[seq.name]
+                    first_scored = max(first_scored, i0 + 1)
+                    det = registry.load("detectors", spec.name, spec.params, appearance=crop)
+                curves, boxes = run_detector_on_sequence(
+                    det, seq, args.fps, run, save, on_frame=lambda: progress.advance(task),
+                    first_scored=first_scored)
+                if curves is not None:
+                    run.sequences[seq.name] = curves
+                run.box_sequences[seq.name] = boxes
+    if all(r.box.frames == 0 for r in runs):
+        raise UsageError("no frame was scored (--unscored-head too large for these sequences?)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     command = "eaglemission bench " + " ".join(shlex.quote(a) for a in sys.argv[2:]) \
         if len(sys.argv) > 1 and sys.argv[1] == "bench" else "eaglemission bench"
-    table = markdown_table(runs, [s.name for s in sequences])
+    names = [s.name for s in sequences]
+    table = markdown_table(runs, names)
+    scored = sum(r.box.frames for r in runs[:1])
     header = (f"# Saliency benchmark\n\nCommand: `{command}`\n\nData: `{args.data}` "
-              f"({len(sequences)} sequences, {sum(s.n_scored for s in sequences)} scored frames). "
-              "Protocol: per-image mean, maps min-max normalised per frame, 256 thresholds, "
-              "max F with beta^2 = 0.3, AUC of the ROC, MAE (docs/detectors.md).\n\n")
+              f"({len(sequences)} sequences, {scored} scored frames"
+              + (f"; target image: {args.target_image}" if args.target_image else "")
+              + (f"; first {100 * head:.0f}% of each sequence not scored" if head else "")
+              + "). Protocol: per-image mean, maps min-max normalised per frame, 256 "
+              "thresholds, max F with beta^2 = 0.3, AUC of the ROC, MAE; box metrics as in "
+              "docs/detectors.md.\n\n")
     (out / "results.md").write_text(header + table)
     (out / "results.json").write_text(json.dumps(results_json(runs, sequences, args, command),
                                                  indent=1))
-    plots = plot_curves(runs, out)
+    plots = plot_curves(runs, out) + [plot_box_rates(runs, names, out)]
     print(table)
     console.print(f"wrote {out / 'results.md'}, {out / 'results.json'}, "
                   + ", ".join(str(p) for p in plots)
@@ -437,7 +715,8 @@ def run_bench(args: argparse.Namespace) -> int:
 
 
 BENCH_COMMAND = Command(
-    "score saliency detectors on <seq>/frames + <seq>/gt folders (max F, MAE, AUC, PR/ROC)",
+    "score saliency detectors on <seq>/frames + <seq>/gt masks or <seq>/boxes.txt (max F, MAE, "
+    "AUC, PR/ROC; on target, IoU, false detections)",
     _bench_args, run_bench)
 
 
@@ -514,9 +793,7 @@ def detector_from_args(args: argparse.Namespace) -> tuple[str, dict[str, Any]]:
     name: str | None = args.detector
     params: dict[str, Any] = {}
     if args.config is not None:
-        from eaglemission.config import parse_yaml, read_config_text
-
-        data = parse_yaml(read_config_text(args.config), source=str(args.config))
+        data = _config_data(args.config)
         if isinstance(data, dict) and isinstance(data.get("detector"), dict):
             section = data["detector"]
             params = dict(section.get("params") or {})
@@ -536,6 +813,29 @@ def detector_from_args(args: argparse.Namespace) -> tuple[str, dict[str, Any]]:
     return name, deep_merge(params, parse_kv(args.params))
 
 
+def _config_data(path: Path) -> Any:
+    from eaglemission.config import parse_yaml, read_config_text
+
+    return parse_yaml(read_config_text(path), source=str(path))
+
+
+def target_image_from_args(args: argparse.Namespace) -> np.ndarray | None:
+    """The example image of the target: ``--target-image PATH``, else the mission file's
+    ``target.appearance_image`` (relative to the mission file), else None."""
+    if args.target_image is not None:
+        return read_target_image(Path(args.target_image))
+    if args.config is not None:
+        data = _config_data(args.config)
+        target = data.get("target") if isinstance(data, dict) else None
+        rel = target.get("appearance_image") if isinstance(target, dict) else None
+        if rel:
+            path = Path(rel)
+            if not path.is_absolute():
+                path = Path(args.config).resolve().parent / path
+            return read_target_image(path)
+    return None
+
+
 def _detect_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", type=Path, help="a video file or a folder of images")
     p.add_argument("--detector", default=None, help="detector plugin (see `eaglemission plugins`)")
@@ -548,6 +848,10 @@ def _detect_args(p: argparse.ArgumentParser) -> None:
                    help="frame rate for an image folder's timestamps (videos use their own)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
     p.add_argument("--no-video", action="store_true", help="images only, no overlay.mp4")
+    p.add_argument("--target-image", default=None, metavar="PATH",
+                   help="an example image of the target (a tight crop, or a photo on a plain "
+                        "background) for detectors that use one; default: the --config mission "
+                        "file's target.appearance_image")
     g = p.add_argument_group("target prior (keeps only regions that fit; off by default)")
     g.add_argument("--min-area-px", type=float, default=None, help="smallest MBR area, px^2")
     g.add_argument("--max-area-px", type=float, default=None, help="largest MBR area, px^2")
@@ -582,7 +886,9 @@ def run_detect(args: argparse.Namespace) -> int:
         raise UsageError(f"--max-frames: must be >= 1, got {args.max_frames}")
     name, params = detector_from_args(args)
     prior = prior_from_args(args)
-    detector = registry.load("detectors", name, params)
+    appearance = target_image_from_args(args)
+    detector = registry.load("detectors", name, params,
+                             **({"appearance": appearance} if appearance is not None else {}))
     out = Path(args.out)
     frames_iter = iter_input(Path(args.input), args.fps, args.max_frames)
     out.mkdir(parents=True, exist_ok=True)
@@ -624,10 +930,10 @@ def run_detect(args: argparse.Namespace) -> int:
                 jl.write(json.dumps({
                     "frame": stem, "timestamp_ns": frame.timestamp_ns,
                     "threshold": result.threshold,
-                    "detections": [{"score": d.score, "center_px": d.center_px,
+                    "detections": [{"rank": k, "score": d.score, "center_px": d.center_px,
                                     "corners_px": d.corners_px.tolist(), "size_px": d.size_px,
                                     "angle_deg": d.angle_deg, "area_px": d.area_px}
-                                   for d in result.detections]}) + "\n")
+                                   for k, d in enumerate(result.detections)]}) + "\n")
                 n += 1
                 n_det += len(result.detections)
     finally:

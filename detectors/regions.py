@@ -1,6 +1,7 @@
 """Saliency map -> detections, shared by every detector (paper Sec. 4.2).
 
-Normalise to 0..255, threshold (the paper's fixed T = 120, or adaptive: Otsu / k x mean),
+Normalise to 0..255, threshold (the paper's fixed T = 120; adaptive: a fraction of the
+frame's peak above an absolute floor, Otsu or k x mean),
 connected regions, minimum bounding rectangle (rotated, ``cv2.minAreaRect``) with its 4 corners
 ordered as docs/conventions.md fixes (clockwise on screen from the top-left), filtered by the
 target prior (projected area range, aspect ratio), ranked by score.
@@ -43,11 +44,19 @@ class RegionsConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    threshold: Literal["fixed", "otsu", "mean"] = "fixed"
+    threshold: Literal["fixed", "otsu", "mean", "adaptive"] = "fixed"
     fixed_threshold: int = Field(120, ge=1, le=254, description="T of the paper, on 0..255")
     mean_factor: float = Field(3.0, gt=0, description="k of the k x mean adaptive threshold")
+    adaptive_floor: int = Field(40, ge=1, le=254, description=(
+        "adaptive: the lowest T, on 0..255 (a map below it everywhere has no region)"))
+    peak_fraction: float = Field(0.8, gt=0, lt=1, description=(
+        "adaptive: T = max(adaptive_floor, peak_fraction x the map's maximum)"))
     normalize: Literal["minmax", "none"] = "none"
     min_area_px: float = Field(16.0, ge=1)
+    max_area_frac: float | None = Field(None, gt=0, le=1, description=(
+        "drop regions whose MBR covers more than this fraction of the image"))
+    max_aspect: float | None = Field(None, ge=1, description=(
+        "drop regions whose MBR is more elongated than this (long / short side)"))
     max_detections: int = Field(5, ge=1, le=100)
     mbr_pixel_edges: bool = True
 
@@ -98,6 +107,17 @@ def to_uint8(saliency: Saliency, normalize: str = "none") -> NDArray[np.uint8]:
     return cv2.convertScaleAbs(cv2.max(s, 0.0), alpha=255.0)
 
 
+def adaptive_threshold(peak8: float, floor: float, fraction: float) -> float:
+    """The adaptive threshold on 0..255: ``max(floor, fraction x peak)`` (docs/paper_choices.md,
+    "Regions and evaluation").
+
+    Sec. 3.2's "adaptive threshold segmentation" read as a segmentation relative to the frame's
+    own peak (the region around the most salient spot, whatever the map's overall strength),
+    above an absolute floor so that a map that stays low everywhere -- no target -- has no region.
+    """
+    return float(max(floor, fraction * peak8))
+
+
 def binarize(sal8: NDArray[np.uint8], cfg: RegionsConfig) -> tuple[NDArray[np.uint8], float]:
     """Binary mask (0/255, ``sal8 > T``) and the threshold ``T`` used, on 0..255."""
     if cfg.threshold == "otsu":
@@ -105,6 +125,9 @@ def binarize(sal8: NDArray[np.uint8], cfg: RegionsConfig) -> tuple[NDArray[np.ui
         return mask, float(t)
     if cfg.threshold == "mean":
         t = min(254.0, max(1.0, cfg.mean_factor * float(cv2.mean(sal8)[0])))
+    elif cfg.threshold == "adaptive":
+        peak = float(cv2.minMaxLoc(sal8)[1])
+        t = min(254.0, adaptive_threshold(peak, cfg.adaptive_floor, cfg.peak_fraction))
     else:
         t = float(cfg.fixed_threshold)
     _, mask = cv2.threshold(sal8, t, 255, cv2.THRESH_BINARY)
@@ -173,6 +196,7 @@ def find_regions(
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     grow = 1.0 if cfg.mbr_pixel_edges else 0.0
     sal = np.asarray(saliency, dtype=np.float32)
+    image_area = float(sal.shape[0] * sal.shape[1])
     candidates: list[tuple[float, tuple[tuple[float, float], tuple[float, float], float]]] = []
     for cnt in contours:
         x, y, bw, bh = cv2.boundingRect(cnt)
@@ -185,6 +209,10 @@ def find_regions(
         if rect_area < cfg.min_area_px:
             continue
         if not prior_accepts(rect_area, max(w, h), min(w, h), prior):
+            continue
+        if cfg.max_area_frac is not None and rect_area > cfg.max_area_frac * image_area:
+            continue
+        if cfg.max_aspect is not None and max(w, h) > cfg.max_aspect * min(w, h):
             continue
         region = np.zeros((bh, bw), np.uint8)
         cv2.drawContours(region, [cnt], 0, 255, thickness=cv2.FILLED, offset=(-x, -y))

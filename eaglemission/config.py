@@ -125,12 +125,15 @@ class EstimatorsSection(StrictModel):
 
 class TargetConfig(StrictModel):
     """The target is a box; its top face (length x width) is the PnP model. ``length_m`` runs
-    along the target's heading."""
+    along the target's heading. ``appearance_image`` (optional) is an example image of the
+    target (a tight crop, or a photo on a plain background), relative to the mission file;
+    detectors that use one get it as their ``appearance`` (docs/detectors.md)."""
 
     length_m: PosFloat
     width_m: PosFloat
     height_m: NonNegFloat = 0.0
     color_bgr: tuple[Annotated[int, Field(ge=0, le=255)], ...] | None = None
+    appearance_image: str | None = None
 
     @model_validator(mode="after")
     def _colour(self) -> TargetConfig:
@@ -497,8 +500,9 @@ def load_config(path: str | Path | None = None, *, check_plugins: bool = True,
 
 
 def resolve_relative_paths(cfg: MissionFile, base_dir: Path | None) -> MissionFile:
-    """Make ``cameras.*.calibration_file`` absolute, relative to the mission file's folder
-    (the embedded configs resolve against the installed ``eaglemission.configs`` package)."""
+    """Make ``cameras.*.calibration_file`` and ``target.appearance_image`` absolute, relative to
+    the mission file's folder (the embedded configs resolve against the installed
+    ``eaglemission.configs`` package)."""
     if base_dir is None:
         base_dir = Path(str(resources.files("eaglemission.configs")))
     cams = {}
@@ -507,5 +511,10 @@ def resolve_relative_paths(cfg: MissionFile, base_dir: Path | None) -> MissionFi
         if cam.calibration_file is not None and not Path(cam.calibration_file).is_absolute():
             cam = cam.model_copy(update={"calibration_file": str(base_dir / cam.calibration_file)})
         cams[name] = cam
-    return cfg.model_copy(update={"cameras": cfg.cameras.model_copy(update=cams)})
+    update: dict[str, Any] = {"cameras": cfg.cameras.model_copy(update=cams)}
+    image = cfg.target.appearance_image
+    if image is not None and not Path(image).is_absolute():
+        update["target"] = cfg.target.model_copy(
+            update={"appearance_image": str(base_dir / image)})
+    return cfg.model_copy(update=update)
 

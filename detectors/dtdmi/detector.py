@@ -11,6 +11,13 @@
   "field preset"): S_s in Reinhard's l-alpha-beta (chromatic distances), Eq. (2) per colour
   bin, a spatial-compactness cue instead of the centre weighting of Eqs. (3)-(5), absolute
   scale, and Eq. (15) as ``S_s x (1 + gain x S_M)`` so the dynamic map boosts, not gates.
+- ``aerial``: real aerial video (docs/paper_choices.md, "aerial preset"): S_s adds to the field
+  colour cue Eq. (2) read per pixel block (:func:`.equations.block_contrast_cue`), S_M aligns
+  the delay units to the camera's motion (homography), Eq. (15) is ``max(S_s, gain x S_M)``,
+  and the regions use the adaptive threshold.
+
+An example image of the target (context ``appearance``, :mod:`eaglemission.detectors.appearance`)
+adds its colour back-projection ``A``: ``S <- A + appearance_saliency_weight x S``.
 
 Every preset-dependent knob is a config field whose ``None`` means "as the preset says".
 
@@ -22,30 +29,33 @@ References
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Literal
 
 import cv2
 import numpy as np
-from eaglemission.detectors.base import DetectorConfig, SaliencyDetector
+from eaglemission.detectors.base import DetectorConfig, SaliencyDetector, validate_image
 from eaglemission.detectors.dtdmi import equations as eq
 from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
 from eaglemission.detectors.dtdmi.static import NBINS, ClusterStatic, StaticParams, quantize_bgr
-from pydantic import Field, field_validator
+from eaglemission.detectors.regions import RegionsConfig, find_regions
+from pydantic import Field, field_validator, model_validator
 
-from eaglemission.types import Frame, Saliency
+from eaglemission.types import Detection, DetectionResult, Frame, Saliency, TargetPrior
 
 
 class DTDMIConfig(DetectorConfig):
     """Parameters of the DTDMI detector (see docs/dtdmi.md)."""
 
-    preset: Literal["literal", "default", "field"] = "default"
+    preset: Literal["literal", "default", "field", "aerial"] = "default"
     # -- dynamic part (Eqs. 7-14)
     tau_s: float = Field(0.1, gt=0, le=60, description="delay-unit time constant, Eqs. (8)-(9)")
     scales: tuple[float, ...] = Field((1.0, 0.5, 0.25), min_length=1, max_length=6,
                                       description="Eq. (14) scale factors, each in (0, 1]")
     tensor_radius_px: int = Field(2, ge=0, le=15, description="Eq. (12) neighbourhood half-size")
-    ego_motion: Literal["none", "phase", "homography"] = "none"
+    ego_motion: Literal["none", "phase", "homography"] | None = Field(None, description=(
+        "align the delay units to the camera's motion before Eq. (10); None: as the preset "
+        "says (aerial: homography, the others: none)"))
     ego_motion_width_px: int = Field(320, ge=32, le=2048)
     dynamic_floor: float = Field(1e-20, ge=0, description=(
         "noise floor subtracted from Eq. (13) (grey in 0..1); removes float round-off where "
@@ -71,9 +81,24 @@ class DTDMIConfig(DetectorConfig):
         "cluster as printed"))
     spread_pool: bool | None = Field(None, description=(
         "distribution cue: pool each colour bin with its 26 neighbouring bins"))
-    fusion: Literal["product", "boost"] | None = Field(None, description=(
-        "Eq. (15): product S_s x S_M (as printed) or boost S_s x (1 + dynamic_gain x S_M)"))
-    dynamic_gain: float | None = Field(None, ge=0, le=100, description="gain of S_M in boost")
+    fusion: Literal["product", "boost", "max"] | None = Field(None, description=(
+        "Eq. (15): product S_s x S_M (as printed), boost S_s x (1 + dynamic_gain x S_M) or max "
+        "max(S_s, dynamic_gain x S_M)"))
+    dynamic_gain: float | None = Field(None, ge=0, le=100, description="gain of S_M in boost/max")
+    colour_weight: float | None = Field(None, ge=0, le=100, description=(
+        "weight of the colour cue (Eqs. (2)-(6) as the preset computes them) in S_s"))
+    block_weight: float | None = Field(None, ge=0, le=100, description=(
+        "weight of the block contrast cue (Eq. (2) per pixel block) in S_s; 0: off"))
+    block_radius_frac: float | None = Field(None, gt=0, le=0.2, description=(
+        "block contrast: half-size of the centre block, fraction of the image diagonal"))
+    block_surround: float | None = Field(None, gt=1, le=20, description=(
+        "block contrast: half-size of the surrounding block / that of the centre block"))
+    block_luminance_weight: float | None = Field(None, ge=0, le=1, description=(
+        "block contrast: weight of L* against a*, b* (CIE L*a*b*)"))
+    block_unit: float | None = Field(None, gt=0, description=(
+        "block contrast: L*a*b* distance that counts as 1 in S_s"))
+    block_fusion: Literal["static", "add"] | None = Field(None, description=(
+        "block contrast: part of S_s before Eq. (15) (static), or added to S after it (add)"))
     normalize_scales: bool | None = None
     dynamic_exponent: float | None = Field(None, gt=0, le=1)
     static_exponent: float | None = Field(None, ge=0, le=4)
@@ -85,9 +110,34 @@ class DTDMIConfig(DetectorConfig):
         "S / (S + saturation), so 'no target' stays dark"))
     saturation: float | None = Field(None, gt=0, description=(
         "S that maps to 0.5 with output_scale=absolute (T = 120/255 needs S > 0.89 x this)"))
+    # -- appearance prior (used only when the detector gets an `appearance` image)
+    appearance_prior: float = Field(0.1, gt=0, le=1, description=(
+        "fraction of the frame the target is expected to cover (colour back-projection)"))
+    appearance_saliency_weight: float = Field(0.25, ge=0, le=100, description=(
+        "with an appearance image: S <- A + this x S (A: the colour back-projection)"))
+    appearance_rank_exponent: float = Field(4.0, ge=0, le=32, description=(
+        "with an appearance image: regions re-ranked by score x BC^this (BC: Bhattacharyya "
+        "coefficient of the region's colour histogram and the example's); 0: off"))
+    appearance_candidates: int = Field(12, ge=1, le=100, description=(
+        "with an appearance image: regions re-ranked before keeping regions.max_detections"))
     # -- speed
     downscale: int = Field(1, ge=1, le=8, description="process at 1/downscale resolution")
     backend: Literal["numba", "numpy"] = "numba"
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset_regions(cls, data: Any) -> Any:
+        """The regions default of the preset, with the given ``regions`` keys on top."""
+        if not isinstance(data, dict):
+            return data
+        preset = data.get("preset", "default")
+        base = PRESET_REGIONS.get(preset) if isinstance(preset, str) else None
+        given = data.get("regions")
+        if base is None or isinstance(given, RegionsConfig):
+            return data
+        if given is not None and not isinstance(given, dict):
+            return data  # let the field's own validation report it
+        return {**data, "regions": {**base, **(given or {})}}
 
     @field_validator("scales")
     @classmethod
@@ -116,6 +166,14 @@ class Resolved:
     spread_pool: bool = True
     fusion: str = "product"
     dynamic_gain: float = 0.0
+    colour_weight: float = 1.0
+    block_weight: float = 0.0
+    block_radius_frac: float = 0.0055
+    block_surround: float = 3.0
+    block_luminance_weight: float = 0.3
+    block_unit: float = 20.0
+    block_fusion: str = "static"
+    ego_motion: str = "none"
 
 
 #: field preset: S_s (chromatic l-alpha-beta units) mapped to 0.5; T = 120/255 then needs
@@ -125,10 +183,31 @@ FIELD_GAIN = 1.0
 
 PRESETS: dict[str, Resolved] = {
     "literal": Resolved("inverse_square", "lms", False, 1.0, 1.0, 0.0, 0.0, "frame_max", 1.0),
-    "default": Resolved("inverse_square", "lms", False, 0.25, 0.5, 0.02, 0.25, "absolute", 0.5),
+    # default: S_M + Eq. (2) per block, tuned out of fold on DAVIS (benchmarks/tune_real.py);
+    # the cluster cue of Eqs. (1)-(6) is off (colour_weight 0: S_s^0 in the grid's terms)
+    "default": Resolved("inverse_square", "lms", False, 0.25, 0.5, 0.03, 0.3, "absolute", 0.5,
+                        colour_weight=0.0, block_weight=0.25, block_radius_frac=0.01,
+                        block_luminance_weight=0.5, block_fusion="add"),
     "field": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.001, 0.0, "absolute",
                       FIELD_SATURATION, luminance_weight=0.0, spread_sigma_frac=0.1,
                       contrast_level="bin", fusion="boost", dynamic_gain=FIELD_GAIN),
+    # aerial: tuned out of fold on ../shared's UAV sequences (benchmarks/tune_real.py)
+    "aerial": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.003, 0.0, "absolute",
+                       3.0, luminance_weight=0.6, spread_sigma_frac=0.1, contrast_level="bin",
+                       fusion="max", dynamic_gain=2.5, colour_weight=1.0, block_weight=1.0,
+                       block_radius_frac=0.0055, block_luminance_weight=0.6,
+                       ego_motion="homography"),
+}
+
+#: Each preset's ``regions`` defaults (given keys override them; regions.py has the meaning).
+#: ``literal`` and ``field`` keep the paper's fixed T = 120; ``default`` and ``aerial`` use the
+#: adaptive threshold (docs/paper_choices.md, "Regions and evaluation").
+PRESET_REGIONS: dict[str, dict[str, Any]] = {
+    "literal": {},
+    "field": {},
+    "default": {"threshold": "adaptive", "adaptive_floor": 60, "peak_fraction": 0.5},
+    "aerial": {"threshold": "adaptive", "adaptive_floor": 20, "peak_fraction": 0.8,
+               "max_aspect": 5.0},
 }
 
 
@@ -173,6 +252,47 @@ def smooth_reduced(small: np.ndarray, sigma_px: float, in_place: bool, out_hw: t
     return cv2.resize(mapped, (out_hw[1], out_hw[0]), interpolation=cv2.INTER_LINEAR)
 
 
+def lab_features(bgr: np.ndarray, luminance_weight: float) -> np.ndarray:
+    """(H, W, 3) float32 CIE L*a*b* (L* in 0..100, a*, b* about -128..127; OpenCV's 8-bit
+    conversion) with L* scaled by ``luminance_weight``: the block contrast cue's features."""
+    lab8 = cv2.cvtColor(bgr, cv2.COLOR_BGR2Lab)
+    scale = np.array([luminance_weight * 100.0 / 255.0, 1.0, 1.0], np.float32)
+    offset = np.array([0.0, -128.0, -128.0], np.float32)
+    return lab8.astype(np.float32) * scale + offset
+
+
+def block_contrast_fast(bgr: np.ndarray, luminance_weight: float, radius_px: int,
+                        surround: float) -> np.ndarray:
+    """:func:`.equations.block_contrast_cue` of :func:`lab_features` in OpenCV calls only (box
+    means of the 8-bit L*a*b* image straight to float, the weighted distance by
+    ``cv2.transform``): the same map within float rounding (tested), ~5x faster."""
+    lab8 = cv2.cvtColor(bgr, cv2.COLOR_BGR2Lab)
+    r = max(1, int(radius_px))
+    big = max(r + 1, int(round(surround * r)))
+    centre = cv2.boxFilter(lab8, cv2.CV_32F, (2 * r + 1, 2 * r + 1),
+                           borderType=cv2.BORDER_REFLECT)
+    around = cv2.boxFilter(lab8, cv2.CV_32F, (2 * big + 1, 2 * big + 1),
+                           borderType=cv2.BORDER_REFLECT)
+    cv2.subtract(centre, around, dst=centre)
+    cv2.multiply(centre, centre, dst=centre)
+    wl = luminance_weight * 100.0 / 255.0
+    dist = cv2.transform(centre, np.array([[wl * wl, 1.0, 1.0]], np.float32))
+    return cv2.sqrt(dist.reshape(dist.shape[0], dist.shape[1]))
+
+
+def appearance_rerank(dets: tuple[Detection, ...], image: np.ndarray, q: np.ndarray,
+                      gamma: float, keep: int) -> tuple[Detection, ...]:
+    """Detections re-ranked by ``score x BC^gamma`` (BC: Bhattacharyya coefficient of the
+    region's colour histogram and the example's ``q``), the best ``keep``, that product as their
+    score (:mod:`eaglemission.detectors.appearance`)."""
+    from eaglemission.detectors.appearance import bhattacharyya, region_histogram
+
+    ranked = sorted(
+        ((d.score * bhattacharyya(region_histogram(image, d.corners_px), q) ** gamma, k)
+         for k, d in enumerate(dets)), reverse=True)
+    return tuple(replace(dets[k], score=float(s)) for s, k in ranked[:keep])
+
+
 class DTDMIEngine:
     """The stateful computation (no plugin plumbing): ``saliency(bgr, timestamp_ns)``.
 
@@ -197,9 +317,20 @@ class DTDMIEngine:
             contrast_level=self.r.contrast_level, spread_pool=self.r.spread_pool))
         self.dynamic = MidbrainDynamic(DynamicParams(
             scales=tuple(cfg.scales), tau_s=cfg.tau_s, tensor_radius_px=cfg.tensor_radius_px,
-            ego_motion=cfg.ego_motion, ego_motion_width_px=cfg.ego_motion_width_px,
+            ego_motion=self.r.ego_motion, ego_motion_width_px=cfg.ego_motion_width_px,
             backend=cfg.backend, floor=cfg.dynamic_floor))
         self._shape: tuple[int, int] | None = None
+        self.appearance: Any = None  # AppearanceModel (detectors/appearance.py) or None
+        # S_s as a weighted sum of cues, the max fusion or an appearance image: the general
+        # (unstreamed) path of _general_saliency
+        self.general = (self.r.block_weight > 0 or self.r.fusion == "max"
+                        or self.r.colour_weight != 1.0)
+
+    def set_appearance(self, model: Any) -> None:
+        """Use an appearance model (or None) from the next frame on."""
+        self.appearance = model
+        self.general = self.general or model is not None
+        self._shape = None  # reallocate: the general path does not pool the smoothing
 
     def reset(self) -> None:
         self.static.reset()
@@ -229,7 +360,7 @@ class DTDMIEngine:
         # (and every further one exactly half the one before, so that dynamic.step reduces
         # it from that one, never from the 8-bit frame)
         self._half = None
-        if self._chain and self.cfg.ego_motion == "none" and coarse_hw:
+        if self._chain and self.r.ego_motion == "none" and coarse_hw:
             ok, prev = True, (h, w)
             for hw in coarse_hw:
                 ok = ok and prev[0] % 2 == 0 and prev[1] % 2 == 0 and \
@@ -259,7 +390,8 @@ class DTDMIEngine:
         # the smoothing starts from (kernels.combine / midbrain_combine with f > 1: what
         # smooth_mapped's INTER_AREA reduction gives), so no full-resolution S plane is written.
         self._pool_f = 0
-        if self.numba and self.r.blur_sigma_frac > 0 and self.r.fusion != "boost":
+        if (self.numba and self.r.blur_sigma_frac > 0 and self.r.fusion != "boost"
+                and not self.general):
             f = smoothing_factor(self.r.blur_sigma_frac * float(np.hypot(h, w)))
             if f > 1 and h % f == 0 and w % f == 0:
                 self._pool_f = f
@@ -288,6 +420,7 @@ class DTDMIEngine:
             lut = self.static.bin_saliency_from_hist(hist, whist, timestamp_ns)  # Eqs. (2)-(6)
         if self.r.static_exponent != 1.0:
             lut = np.power(lut, np.float32(self.r.static_exponent))
+        self._frame_hist = hist  # the sampled colour counts (appearance prior)
         return lut
 
     def _upsampling(self, base: np.ndarray, target_hw: tuple[int, int]
@@ -335,19 +468,20 @@ class DTDMIEngine:
         return 1.0 / top if top > 0 else 1.0
 
     def _dynamic_and_product(self, work: np.ndarray, lut: np.ndarray | None,
-                             timestamp_ns: int) -> float:
-        """Eqs. (7)-(15) into ``self._out``; returns its maximum."""
+                             timestamp_ns: int, centre: bool = True) -> float:
+        """Eqs. (7)-(15) into ``self._out``; returns its maximum. ``lut`` None: S_M alone
+        (Eq. (14)); ``centre`` False: no pixel-level centre weight."""
         cv2.cvtColor(work, cv2.COLOR_BGR2GRAY, dst=self._grey8)
         if self._half is not None:
             # the full scale reads the 8-bit image (kernels._response_row), the half scale is
             # its 2 x 2 block means: no full-resolution float grey plane
             self._k.grey_half(self._grey8, self._half)
             self.dynamic.step(self._grey8, timestamp_ns, defer=True, given={1: self._half})
-            return self._streamed(work, lut)
+            return self._streamed(work, lut, centre)
         np.multiply(self._grey8, np.float32(1.0 / 255.0), out=self._grey)
         if self._chain:
             self.dynamic.step(self._grey, timestamp_ns, defer=True)
-            return self._streamed(work, lut)
+            return self._streamed(work, lut, centre)
         maps = self.dynamic.step(self._grey, timestamp_ns)
         gamma = np.float32(self.r.dynamic_exponent)
         tops = self.dynamic.tops
@@ -380,7 +514,7 @@ class DTDMIEngine:
         boost = self.r.fusion == "boost" and lut is not None
         use_static = lut is not None and not boost
         # with boost, the centre weight multiplies the whole S (after the boost), not S_M alone
-        use_centre = self.r.centre_sigma_frac > 0 and not boost
+        use_centre = self.r.centre_sigma_frac > 0 and not boost and centre
         n = len(maps)
         if self.numba:
             # self._pool_f > 1: S only as the block means the smoothing starts from
@@ -408,7 +542,7 @@ class DTDMIEngine:
             acc *= self._centre
         if boost:
             acc[...] = eq.boosted_saliency(lut[self._idx], acc, self.r.dynamic_gain)
-            if self.r.centre_sigma_frac > 0:
+            if self.r.centre_sigma_frac > 0 and centre:
                 acc *= self._centre
         return float(acc.max())
 
@@ -420,7 +554,7 @@ class DTDMIEngine:
             top = float(self._out.max())
         return top
 
-    def _streamed(self, work: np.ndarray, lut: np.ndarray | None) -> float:
+    def _streamed(self, work: np.ndarray, lut: np.ndarray | None, centre: bool = True) -> float:
         """Eqs. (7)-(15) (numba, ``self._chain``): every scale streamed by
         :func:`.kernels.midbrain_combine`, coarsest first, each Eq. (13) row consumed as made.
 
@@ -436,7 +570,7 @@ class DTDMIEngine:
         deferred = self.dynamic.deferred
         boost = self.r.fusion == "boost" and lut is not None
         use_static = lut is not None and not boost
-        use_centre = self.r.centre_sigma_frac > 0 and not boost
+        use_centre = self.r.centre_sigma_frac > 0 and not boost and centre
         no_lut = self._no_lut
         base = self._no_base
         for sc, grey_s, gain in sorted(deferred[1:], key=lambda d: d[0].sm.size):
@@ -461,6 +595,68 @@ class DTDMIEngine:
             return -1.0  # the maximum is taken after the smoothing
         return self._boost(work, lut, top) if boost and not boost_in else top
 
+    def _general_saliency(self, work: np.ndarray, timestamp_ns: int) -> np.ndarray:
+        """S of the general path into ``self._out`` (no per-pixel fusion kernel): S_s as
+        ``colour_weight x`` the colour cue ``+ block_weight x`` the block contrast cue (or the
+        block cue added after Eq. (15), ``block_fusion: add``), Eq. (15) as the preset's fusion
+        with S_M (Eqs. (7)-(14)), then the appearance prior and the centre weight."""
+        r = self.r
+        out = self._out
+        s: np.ndarray | None = None
+        blk: np.ndarray | None = None
+        hist = None
+        if self.cfg.use_static:
+            if r.colour_weight > 0:
+                lut = self._static_lut(work, timestamp_ns)
+                hist = self._frame_hist
+                self._paint(work, lut, out)
+                s = out.copy() if r.colour_weight == 1.0 else out * np.float32(r.colour_weight)
+            if r.block_weight > 0:
+                diag = float(np.hypot(*self._shape))
+                radius = round(r.block_radius_frac * diag)
+                if self.numba:  # the OpenCV path (numba is the fast backend's name)
+                    blk = block_contrast_fast(work, r.block_luminance_weight, radius,
+                                              r.block_surround)
+                else:
+                    blk = eq.block_contrast_cue(lab_features(work, r.block_luminance_weight),
+                                                radius, r.block_surround)
+                blk *= np.float32(r.block_weight / r.block_unit)
+                if r.block_fusion == "static":
+                    s = blk if s is None else np.add(s, blk, out=s)
+                    blk = None
+        if self.cfg.use_dynamic:
+            self._dynamic_and_product(work, None, timestamp_ns, centre=False)  # S_M in out
+            if s is None:
+                s = out.copy()
+            elif r.fusion == "max":
+                s = eq.fused_saliency_max(s, out, r.dynamic_gain).astype(np.float32)
+            elif r.fusion == "boost":
+                s = eq.boosted_saliency(s, out, r.dynamic_gain).astype(np.float32)
+            else:
+                s = eq.final_saliency(s, out).astype(np.float32)
+        if blk is not None:  # block_fusion "add": after Eq. (15)
+            s = blk if s is None else np.add(s, blk, out=s)
+        if s is None:
+            s = np.zeros(self._shape, np.float32)
+        if self.appearance is not None:
+            if hist is None:
+                idx = quantize_bgr(work[::2, ::2])
+                hist = np.bincount(idx.ravel(), minlength=NBINS).astype(np.float64)
+            a_lut = self.appearance.lut(hist)
+            self._paint(work, a_lut, out)
+            s = np.add(out, s * np.float32(self.cfg.appearance_saliency_weight), out=s)
+        if r.centre_sigma_frac > 0:
+            s *= self._centre
+        out[...] = s
+        return out
+
+    def _paint(self, work: np.ndarray, lut: np.ndarray, out: np.ndarray) -> None:
+        """``out = lut[bin(work)]`` (colour bins of :func:`.static.quantize_bgr`)."""
+        if self.numba:
+            self._k.paint_static(work, lut, self._dummy, False, out)
+        else:
+            np.take(lut, quantize_bgr(work), out=out)
+
     # -- whole frame ----------------------------------------------------------------------------
     def saliency(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
         """float32 (H, W) map in [0, 1] at the resolution of ``bgr``."""
@@ -474,6 +670,8 @@ class DTDMIEngine:
         shape = (work.shape[0], work.shape[1])
         if shape != self._shape:
             self._allocate(shape)
+        if self.general:
+            return self._finish(self._general_saliency(work, timestamp_ns), -1.0, bgr, shape)
         lut = self._static_lut(work, timestamp_ns) if cfg.use_static else None
         out = self._out
         if cfg.use_dynamic:
@@ -488,16 +686,21 @@ class DTDMIEngine:
                 if use_centre:
                     out *= self._centre
                 top = float(out.max())
-        full_shape = (bgr.shape[0], bgr.shape[1])
         if cfg.use_dynamic and self._pool_f:
             sigma_px = self.r.blur_sigma_frac * float(np.hypot(*shape))
-            return smooth_reduced(self._pooled, sigma_px / self._pool_f, True, full_shape,
-                                  self._to_unit)
+            return smooth_reduced(self._pooled, sigma_px / self._pool_f, True,
+                                  (bgr.shape[0], bgr.shape[1]), self._to_unit)
+        return self._finish(out, top, bgr, shape)
+
+    def _finish(self, out: np.ndarray, top: float, bgr: np.ndarray,
+                shape: tuple[int, int]) -> np.ndarray:
+        """Smoothing, the output scale and the resize back to the frame's resolution."""
+        full_shape = (bgr.shape[0], bgr.shape[1])
         if self.r.blur_sigma_frac > 0:
             return smooth_mapped(out, self.r.blur_sigma_frac * float(np.hypot(*shape)),
                                  full_shape, self._to_unit)
         result = np.empty(shape, np.float32)
-        self._to_unit(out, top, result)
+        self._to_unit(out, top if top >= 0 else None, result)
         if shape != full_shape:
             return cv2.resize(result, (full_shape[1], full_shape[0]),
                               interpolation=cv2.INTER_LINEAR)
@@ -529,6 +732,30 @@ class DTDMIDetector(SaliencyDetector):
         self.engine = DTDMIEngine(self.config)
         if self.engine.numba:
             self._warm_up()
+        if self.appearance is not None:
+            from eaglemission.detectors.appearance import AppearanceModel
+
+            self.engine.set_appearance(AppearanceModel.from_image(
+                self.appearance, prior=self.config.appearance_prior))
+
+    def detect(self, frame: Frame, prior: TargetPrior | None = None) -> DetectionResult:
+        """Regions of the map; with an appearance image, the ``appearance_candidates`` best
+        regions are re-ranked by ``score x BC^appearance_rank_exponent`` (their colour
+        histogram against the example's, :func:`..appearance.bhattacharyya`) and
+        ``regions.max_detections`` kept, with that product as their score."""
+        model = self.engine.appearance
+        gamma = self.config.appearance_rank_exponent
+        if model is None or gamma == 0:
+            return super().detect(frame, prior)
+        sal = self.saliency(frame)
+        cfg = self.config.regions
+        wide = cfg.model_copy(update={
+            "max_detections": max(cfg.max_detections, self.config.appearance_candidates)})
+        dets, threshold = find_regions(sal, wide, prior, camera_id=frame.camera_id)
+        kept = appearance_rerank(dets, validate_image(frame.image), model.q, gamma,
+                                 cfg.max_detections)
+        return DetectionResult(sal, kept, frame.timestamp_ns, frame.camera_id, frame.seq,
+                               threshold)
 
     def _warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel now, not on the first real frame."""

@@ -69,7 +69,7 @@ def test_bench_variant_label_and_sequence_subset(tmp_path, rng):
     res = json.loads((out / "results.json").read_text())
     assert res["detectors"]["ft@minmax"]["params"] == {"normalization": "minmax"}
     assert res["detectors"]["ft"]["params"] == {}
-    assert res["sequences"] == {"beta": {"frames": 2, "scored": 2}}
+    assert res["sequences"] == {"beta": {"frames": 2, "scored": 2, "annotation": "masks"}}
 
 
 def test_parse_detector_specs():
@@ -187,3 +187,123 @@ def test_detect_config_file_and_errors(tmp_path, rng, capsys):
     bad.write_bytes(b"not a video")
     rc = main(["detect", str(bad), "--detector", "ft", "--out", str(tmp_path / "o5")])
     assert rc == 2 and "cannot open as a video" in capsys.readouterr().err
+
+
+def _make_box_dataset(root: Path, rng: np.random.RandomState, n: int = 10,
+                      size=(96, 64)) -> Path:
+    """``root/set/seq``: a yellow 16 x 12 px square moving right on faint noise, boxes.txt
+    1-based, frame 3 without the target (nan)."""
+    w, h = size
+    seq = root / "set" / "seq"
+    (seq / "frames").mkdir(parents=True)
+    lines = []
+    for i in range(n):
+        img = np.clip(rng.randn(h, w, 3) * 1 + 100, 0, 255).astype(np.uint8)
+        u, v = 10 + 4 * i, 20
+        if i == 3:
+            lines.append("nan,nan,nan,nan")
+        else:
+            img[v:v + 12, u:u + 16] = (40, 200, 240)
+            lines.append(f"{u + 1},{v + 1},16,12")  # 1-based, as the UAV sets
+        cv2.imwrite(str(seq / "frames" / f"{i + 1:06d}.png"), img)
+    (seq / "boxes.txt").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def test_bench_on_a_box_sequence(tmp_path, rng, capsys):
+    data = _make_box_dataset(tmp_path / "data", rng)
+    out = tmp_path / "out"
+    rc = main(["bench", "--data", str(data), "--detectors", "ft,centre_prior",
+               "--params", "ft:normalization=minmax", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    res = json.loads((out / "results.json").read_text())
+    assert res["sequences"] == {"set/seq": {"frames": 10, "scored": 10, "annotation": "boxes"}}
+    ft = res["detectors"]["ft"]["box"]["overall"]
+    assert ft["frames"] == 10 and ft["target_frames"] == 9
+    assert ft["best_on_target"] == 1.0 and ft["peak_on_target"] == 1.0
+    assert ft["mean_iou"] > 0.8
+    # the target-free frame: min-max stretches the noise, 5 regions (the cap), all false
+    assert ft["false_per_frame"] == pytest.approx(5 / 10)
+    cp = res["detectors"]["centre_prior"]["box"]["overall"]
+    assert cp["frames_with_detection"] == 1.0 and cp["best_on_target"] < 0.7
+    assert "overall" not in res["detectors"]["ft"]  # no masks: no max F / AUC
+    text = (out / "results.md").read_text()
+    assert "| set/seq | 9/10 |" in text and "max F / SR" not in text
+    assert cv2.imread(str(out / "box_on_target.png")) is not None
+    assert not (out / "pr_curves.png").exists()
+    # zero-based reading shifts the boxes by one pixel: still on target
+    rc = main(["bench", "--data", str(data), "--detectors", "ft", "--params",
+               "ft:normalization=minmax", "--box-origin", "0", "--sequences", "seq",
+               "--out", str(tmp_path / "o0"), "--no-progress"])
+    res0 = json.loads((tmp_path / "o0" / "results.json").read_text())
+    assert rc == 0 and res0["detectors"]["ft"]["box"]["overall"]["best_on_target"] == 1.0
+    assert res0["detectors"]["ft"]["box"]["overall"]["mean_iou"] < ft["mean_iou"]
+
+
+def test_bench_first_frame_target_image_skips_the_head(tmp_path, rng):
+    data = _make_box_dataset(tmp_path / "data", rng, n=20)
+    out = tmp_path / "out"
+    rc = main(["bench", "--data", str(data), "--detectors", "ft", "--params",
+               "ft:normalization=minmax", "--target-image", "first-frame", "--out", str(out),
+               "--no-progress"])
+    assert rc == 0
+    res = json.loads((out / "results.json").read_text())
+    b = res["detectors"]["ft"]["box"]["overall"]
+    # first 10 % (2 frames) not scored; frame 3 has no target
+    assert b["frames"] == 18 and b["target_frames"] == 17
+    assert res["target_image"] == "first-frame" and res["unscored_head"] == 0.1
+    # the same frames without the image
+    rc = main(["bench", "--data", str(data), "--detectors", "ft", "--params",
+               "ft:normalization=minmax", "--unscored-head", "0.1", "--out",
+               str(tmp_path / "o2"), "--no-progress"])
+    res2 = json.loads((tmp_path / "o2" / "results.json").read_text())
+    assert res2["detectors"]["ft"]["box"]["overall"]["frames"] == 18
+
+
+def test_bench_box_file_errors(tmp_path, rng, capsys):
+    data = _make_box_dataset(tmp_path / "data", rng, n=3)
+    box_file = data / "set" / "seq" / "boxes.txt"
+    box_file.write_text("1,1,4,4\n1,1,4,4\n")
+    rc = main(["bench", "--data", str(data), "--out", str(tmp_path / "o"), "--no-progress"])
+    assert rc == 2 and "2 box line(s) for 3 frame(s)" in capsys.readouterr().err
+    box_file.write_text("1,1,4\n1,1,4,4\n1,1,4,4\n")
+    rc = main(["bench", "--data", str(data), "--out", str(tmp_path / "o"), "--no-progress"])
+    assert rc == 2 and "boxes.txt:1: expected x,y,w,h" in capsys.readouterr().err
+    box_file.write_text("1,1,4,4\n1,1,4,4\n1,1,4,4\n")
+    rc = main(["bench", "--data", str(data), "--target-image", str(tmp_path / "nope.png"),
+               "--out", str(tmp_path / "o"), "--no-progress"])
+    assert rc == 2 and "--target-image" in capsys.readouterr().err
+
+
+def test_detect_takes_a_target_image(tmp_path, rng, monkeypatch):
+    """``--target-image`` and the mission file's ``target.appearance_image`` reach the detector
+    as its ``appearance`` context."""
+    from eaglemission.detectors.spectral_residual import SpectralResidualDetector
+
+    data = _make_box_dataset(tmp_path / "data", rng, n=2)
+    frames = data / "set" / "seq" / "frames"
+    crop = np.full((12, 16, 3), (40, 200, 240), np.uint8)
+    cv2.imwrite(str(tmp_path / "target.png"), crop)
+    seen = []
+    orig = SpectralResidualDetector.__init__
+
+    def spy(self, config=None, **context):
+        seen.append(context.get("appearance"))
+        orig(self, config, **context)
+
+    monkeypatch.setattr(SpectralResidualDetector, "__init__", spy)
+    rc = main(["detect", str(frames), "--detector", "sr", "--target-image",
+               str(tmp_path / "target.png"), "--out", str(tmp_path / "o1"), "--no-video"])
+    assert rc == 0 and seen[-1] is not None and (seen[-1] == crop).all()
+    (tmp_path / "m").mkdir()
+    cv2.imwrite(str(tmp_path / "m" / "box.png"), crop[:, :8])
+    (tmp_path / "m" / "mission.yaml").write_text(
+        "detector: {type: sr, params: {}}\ntarget: {length_m: 0.4, width_m: 0.25, "
+        "appearance_image: box.png}\n")
+    rc = main(["detect", str(frames), "--config", str(tmp_path / "m" / "mission.yaml"),
+               "--out", str(tmp_path / "o2"), "--no-video"])
+    assert rc == 0 and seen[-1].shape == (12, 8, 3)
+    lines = [json.loads(x) for x in (tmp_path / "o2" / "detections.jsonl").read_text().splitlines()]
+    ranks = [d["rank"] for d in lines[0]["detections"]]
+    scores = [d["score"] for d in lines[0]["detections"]]
+    assert ranks == list(range(len(ranks))) and scores == sorted(scores, reverse=True)

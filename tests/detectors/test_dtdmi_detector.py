@@ -46,10 +46,19 @@ def test_static_scene_without_camera_motion_gives_near_zero_dynamic_map():
     assert max(peaks) <= 1e-6 * moving_peak
 
 
+# The default preset before issue 14: S = S_s^0.5 x S_M (Eq. (15) as a product, no block cue);
+# a static scene or the first frame after a reset gives exactly 0 there.
+PRODUCT = {"block_weight": 0.0, "colour_weight": 1.0, "blur_sigma_frac": 0.02,
+           "centre_sigma_frac": 0.25}
+
+
 def test_dtdmi_static_scene_detects_nothing():
     rng = np.random.RandomState(12)
     img = texture(rng, 64, 80)
-    det = DTDMIDetector()
+    det = DTDMIDetector(DTDMIConfig(**PRODUCT))
+    plain = DTDMIDetector()  # the default (S_M + the block cue): some map, no region
+    for i in range(6):
+        assert plain.detect(frame(img, i)).detections == ()
     for i in range(6):
         res = det.detect(frame(img, i))
     assert res.saliency.max() == 0.0
@@ -87,7 +96,7 @@ def test_reset_and_fresh_detector_agree():
 
 def test_resolution_change_mid_stream_resets_state():
     rng = np.random.RandomState(8)
-    det = DTDMIDetector()
+    det = DTDMIDetector(DTDMIConfig(**PRODUCT))
     for f, _ in moving_scene(rng, n=4, h=64, w=80):
         det.detect(f)
     small = moving_scene(rng, n=3, h=48, w=64)
@@ -121,7 +130,7 @@ def test_dropped_frames_do_not_change_the_delay_state():
 def test_non_increasing_timestamp_resets_with_warning(caplog):
     rng = np.random.RandomState(10)
     scene = moving_scene(rng, n=3)
-    det = DTDMIDetector()
+    det = DTDMIDetector(DTDMIConfig(**PRODUCT))
     for f, _ in scene:
         det.detect(f)
     with caplog.at_level(logging.WARNING):

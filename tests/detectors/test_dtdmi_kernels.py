@@ -43,12 +43,15 @@ def test_detector_numba_and_numpy_backends_agree(preset):
 
 
 def test_detector_backends_agree_with_pooled_smoothing():
-    """At 320x240 the default preset's smoothing reduces by 2, so the numba backend takes the
-    fused Eq. (14)-(15) + block-mean path (``combine_pooled``) instead of a full plane."""
+    """At 320x240 the (pre-issue-14) default preset's smoothing reduces by 2, so the numba
+    backend takes the fused Eq. (14)-(15) + block-mean path (``combine_pooled``) instead of a
+    full plane."""
     rng = np.random.RandomState(23)
     scene = moving_scene(rng, n=4, h=240, w=320, size=24)
-    a = DTDMIDetector(DTDMIConfig(preset="default", backend="numpy"))
-    b = DTDMIDetector(DTDMIConfig(preset="default", backend="numba"))
+    product = {"preset": "default", "block_weight": 0.0, "colour_weight": 1.0,
+               "blur_sigma_frac": 0.02, "centre_sigma_frac": 0.25}
+    a = DTDMIDetector(DTDMIConfig(**product, backend="numpy"))
+    b = DTDMIDetector(DTDMIConfig(**product, backend="numba"))
     for f, _ in scene:
         sb = b.saliency(f)
         assert b.engine._pool_f == 2

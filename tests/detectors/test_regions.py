@@ -204,3 +204,45 @@ def test_resolution_change_resets_state():
     assert det.resets == 1
     det.reset()
     assert det.resets == 2
+
+
+def test_adaptive_threshold_hand_computed():
+    from eaglemission.detectors.regions import adaptive_threshold
+
+    assert adaptive_threshold(200.0, 40, 0.8) == pytest.approx(160.0)
+    assert adaptive_threshold(30.0, 40, 0.8) == 40.0  # the floor
+    cfg = RegionsConfig(threshold="adaptive", adaptive_floor=40, peak_fraction=0.5)
+    sal8 = np.zeros((20, 30), np.uint8)
+    sal8[5:9, 5:9] = 200
+    sal8[12:15, 20:26] = 90  # below 0.5 x 200
+    mask, t = binarize(sal8, cfg)
+    assert t == 100.0 and mask[6, 6] == 255 and mask[13, 22] == 0
+    sal8[5:9, 5:9] = 60  # now the peak is the 90 block: T = max(40, 45)
+    mask, t = binarize(sal8, cfg)
+    assert t == 45.0 and mask[6, 6] == 255 and mask[13, 22] == 255
+    sal8[12:15, 20:26] = 30
+    assert binarize(sal8, cfg)[1] == 40.0  # 0.5 x 60 < the floor
+
+
+def test_adaptive_regions_fire_on_a_weak_blob_and_stay_silent_on_a_flat_map():
+    cfg = RegionsConfig(threshold="adaptive", adaptive_floor=40, peak_fraction=0.8)
+    sal = np.full((60, 80), 0.05, np.float32)  # 13 on 0..255: below the floor
+    assert find_regions(sal, cfg)[0] == ()
+    sal[20:28, 30:40] = 0.3  # a weak blob (77): below T = 120, found by the adaptive rule
+    dets, t = find_regions(sal, cfg)
+    assert find_regions(sal, RegionsConfig())[0] == ()
+    assert len(dets) == 1 and t == pytest.approx(0.8 * 0.3, abs=1 / 255)
+    assert dets[0].size_px == pytest.approx((10.0, 8.0))
+
+
+def test_shape_filters_drop_elongated_and_huge_regions():
+    sal = np.zeros((100, 200), np.float32)
+    sal[10:14, 10:110] = 0.9  # 100 x 4: aspect 25
+    sal[50:90, 20:180] = 0.8  # 160 x 40: 32 % of the image
+    sal[60:70, 190:198] = 0.7  # 8 x 10
+    base = RegionsConfig()
+    assert len(find_regions(sal, base)[0]) == 3
+    dets = find_regions(sal, base.model_copy(update={"max_aspect": 5.0}))[0]
+    assert len(dets) == 2 and all(d.size_px[0] <= 5 * d.size_px[1] for d in dets)
+    dets = find_regions(sal, base.model_copy(update={"max_area_frac": 0.1}))[0]
+    assert len(dets) == 2 and all(d.area_px <= 0.1 * 200 * 100 for d in dets)

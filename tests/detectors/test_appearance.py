@@ -1,0 +1,135 @@
+"""The target's appearance prior: colour model round trip, background weighting, detectors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from eaglemission.detectors.appearance import (
+    AppearanceModel,
+    appearance_posterior,
+    border_mask,
+    kernel_weights,
+    target_histogram,
+)
+from eaglemission.detectors.base import validate_appearance
+from eaglemission.detectors.dtdmi.static import NBINS, quantize_bgr
+
+from eaglemission import registry
+from eaglemission.errors import InputError
+from eaglemission.types import Frame
+
+RED = (30, 40, 210)
+BLUE = (200, 90, 20)
+GREEN = (60, 140, 70)
+
+
+def _bin(bgr) -> int:
+    return int(quantize_bgr(np.array([[bgr]], np.uint8))[0, 0])
+
+
+def _ground(rng: np.random.RandomState, h: int = 240, w: int = 320) -> np.ndarray:
+    img = np.empty((h, w, 3), np.float32)
+    img[...] = GREEN
+    img += rng.randn(h, w, 3).astype(np.float32) * 6
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_posterior_hand_computed():
+    q = np.array([0.5, 0.5, 0.0])
+    p = np.array([0.9, 0.1, 0.0])
+    a = appearance_posterior(q, p, prior=0.1)
+    np.testing.assert_allclose(a, [0.5 / (0.5 + 9.0), 0.5 / (0.5 + 1.0), 0.0], rtol=1e-6)
+    with pytest.raises(ValueError, match="prior"):
+        appearance_posterior(q, p, prior=0.0)
+
+
+def test_kernel_and_border():
+    k = kernel_weights(5, 5)
+    assert k[2, 2] == 1.0 and k[0, 0] == 0.0 and k.max() == 1.0
+    m = border_mask(20, 10, 0.15)
+    assert m[0].all() and m[:, 0].all() and not m[10, 5] and m.sum() == 20 * 10 - 14 * 6
+
+
+def test_round_trip_crop_finds_its_colour_and_ignores_the_ground(rng):
+    frame = _ground(rng)
+    frame[100:120, 200:230] = RED
+    crop = frame[95:125, 195:235].copy()  # a tight crop with a ground margin
+    model = AppearanceModel.from_image(crop, prior=0.01)
+    assert model.q.sum() == pytest.approx(1.0)
+    # the red bin dominates the model although the crop is ~50 % ground
+    assert model.q[_bin(RED)] > 10 * model.q[_bin(GREEN)]
+    # back-projected on another frame with the target elsewhere
+    other = _ground(rng)
+    other[30:50, 40:70] = RED
+    other[150:170, 250:280] = BLUE  # a distractor of another colour
+    a = model.back_project(other)
+    assert a.dtype == np.float32 and a.shape == other.shape[:2]
+    assert a[40, 55] > 0.5
+    assert float(np.median(a)) < 0.01  # the ground
+    assert a[160, 265] == 0.0  # a colour absent from the example
+
+
+def test_plain_background_photo_is_not_the_model():
+    photo = np.full((60, 80, 3), 245, np.uint8)  # a box photographed on white paper
+    photo[15:45, 15:65] = BLUE  # the object covers a third of the photo
+    q_bg = target_histogram(photo)
+    q_flat = target_histogram(photo, border_fraction=0.0)
+    white = _bin((245, 245, 245))
+    assert q_bg[_bin(BLUE)] > 2 * q_bg[white]
+    assert q_bg[white] < 0.5 * q_flat[white]
+    # a uniform example is all target
+    uniform = target_histogram(np.full((10, 12, 3), BLUE, np.uint8))
+    assert uniform[_bin(BLUE)] == pytest.approx(uniform.max())
+
+
+def test_validate_appearance():
+    assert validate_appearance(None) is None
+    grey = validate_appearance(np.zeros((4, 5), np.uint8))
+    assert grey.shape == (4, 5, 3)
+    with pytest.raises(InputError, match="uint8"):
+        validate_appearance(np.zeros((4, 4, 3), np.float32))
+    with pytest.raises(InputError, match="shape"):
+        validate_appearance(np.zeros((4, 4, 4), np.uint8))
+    with pytest.raises(InputError, match="numpy array"):
+        validate_appearance([[1, 2]])
+    with pytest.raises(InputError, match="3x3"):
+        validate_appearance(np.zeros((2, 9, 3), np.uint8))
+
+
+@pytest.mark.parametrize("name", ["sr", "ft", "mss", "centre_prior", "cluster_static"])
+def test_plugins_accept_and_ignore_an_appearance(name):
+    det = registry.load("detectors", name, {}, appearance=np.zeros((8, 8, 3), np.uint8),
+                        camera_id="wide")
+    img = np.full((48, 64, 3), 90, np.uint8)
+    det.detect(Frame(img, 1_000_000_000, "wide", 0))
+
+
+def test_dtdmi_with_the_target_image_prefers_the_target_over_a_more_salient_distractor(rng):
+    """A dull brown target and a saturated magenta distractor of the same size on grass: the
+    block contrast alone ranks the distractor first; with the target's example image the target
+    comes first."""
+    params = {"preset": "aerial", "use_dynamic": False}
+    frame = _ground(rng, 240, 320)
+    frame[60:72, 40:60] = (60, 80, 110)
+    frame[160:172, 220:240] = (255, 0, 255)
+    crop = np.full((16, 24, 3), (60, 80, 110), np.uint8)
+    plain = registry.load("detectors", "dtdmi", params)
+    with_image = registry.load("detectors", "dtdmi", params, appearance=crop)
+    r0 = plain.detect(Frame(frame, 1_000_000_000, "w", 0))
+    r1 = with_image.detect(Frame(frame, 1_000_000_000, "w", 0))
+    assert r0.best is not None and r1.best is not None
+    u0, v0 = r0.best.center_px
+    u1, v1 = r1.best.center_px
+    assert 220 <= u0 <= 240 and 160 <= v0 <= 172  # the distractor
+    assert 40 <= u1 <= 60 and 60 <= v1 <= 72  # the target
+    # the image must be a BGR uint8 array
+    with pytest.raises(InputError):
+        registry.load("detectors", "dtdmi", params, appearance=np.zeros((8, 8), np.float64))
+
+
+def test_appearance_model_ignores_a_frame_without_the_colour(rng):
+    crop = np.full((10, 10, 3), RED, np.uint8)
+    model = AppearanceModel.from_image(crop)
+    frame = _ground(rng)
+    hist = np.bincount(quantize_bgr(frame).ravel(), minlength=NBINS)
+    assert float(model.lut(hist).max()) < 1e-3 or model.back_project(frame).max() < 0.05
