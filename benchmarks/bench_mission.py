@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
 from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
+from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.perception import plausible_size, select_detection
 from eaglemission.missions.sim import run_simulation
@@ -42,7 +43,7 @@ def _with_detector(cfg: MissionFile, name: str | None, downscale: int | None) ->
 def scripted_path(cfg: MissionFile, rate_hz: float, *, hover_s: float = 5.0):
     """(t_s, position, attitude) along: cruise north at cruise speed, brake to a stop 10 m short
     of the target (deceleration tilts the body), hover."""
-    sim = cfg.simulation
+    sim = world_config(cfg)
     v0 = cfg.mission.cruise_speed_mps
     decel = 2.0
     stop_n = sim.target_north_m - 10.0
@@ -74,7 +75,7 @@ def scripted_path(cfg: MissionFile, rate_hz: float, *, hover_s: float = 5.0):
 
 def detection_rate(cfg: MissionFile, *, target_free: bool = False) -> dict[str, tuple[int, int, int]]:
     params = ApproachConfig.model_validate(dict(cfg.mission.params))
-    sim = cfg.simulation
+    sim = world_config(cfg)
     if target_free:
         sim = sim.model_copy(update={"target_north_m": -30.0, "target_east_m": 0.0})
     world = SyntheticWorld(sim, cfg.target, extent_m=200)

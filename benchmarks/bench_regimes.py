@@ -42,9 +42,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 
 from eaglemission import registry
-from eaglemission.config import SimulationConfig, TargetConfig
+from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount, euler_to_quat
 from eaglemission.types import Frame
 
@@ -159,7 +160,7 @@ def main() -> None:
                for ph in phases}
     t_start = time.perf_counter()
     for tex in a.textures:
-        sim = SimulationConfig(seed=a.seed, target_north_m=a.target_north_m,
+        sim = SyntheticWorldConfig(seed=a.seed, target_north_m=a.target_north_m,
                                target_east_m=a.target_east_m, target_yaw_deg=20.0,
                                noise_sigma=2.0, frame_rate_hz=FPS, ground_texture=tex,
                                light_gain=a.light_gain)

@@ -19,6 +19,7 @@ import time
 import cv2
 import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
+from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.missions.approach import ApproachConfig
 
 from eaglemission.config import load_config
@@ -27,7 +28,7 @@ from eaglemission.geometry import euler_to_quat
 
 def trajectory(cfg, n: int) -> list[tuple[tuple[float, float, float], tuple[float, ...]]]:
     """Cruise towards the target at 5 m, then descend to the stand-off pose."""
-    sim = cfg.simulation
+    sim = world_config(cfg)
     tn, te = sim.target_north_m, sim.target_east_m
     out = []
     for i in range(n):
@@ -56,7 +57,7 @@ def main() -> None:
     cv2.setNumThreads(args.threads)
     cfg = load_config(args.config, check_plugins=False)
     t0 = time.perf_counter()
-    world = SyntheticWorld(cfg.simulation, cfg.target)
+    world = SyntheticWorld(world_config(cfg), cfg.target)
     t_world = time.perf_counter() - t0
     models = {cid: getattr(cfg.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
     poses = trajectory(cfg, args.frames)

@@ -39,6 +39,7 @@ from eaglemission.detectors.mss import mss_distance
 from eaglemission.drivers.cameras import world as world_mod
 from eaglemission.drivers.cameras.synthetic import geofence_extent_m
 from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
+from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.estimators import correspondence as corr
 from eaglemission.estimators.rpnp import refine_pose
 from eaglemission.missions import runner as runner_mod
@@ -66,7 +67,7 @@ def load() -> str:
 
 
 def mission_poses(cfg: MissionFile) -> list[tuple[str, tuple[float, float, float], Any]]:
-    sim = cfg.simulation
+    sim = world_config(cfg)
     tn, te = sim.target_north_m, sim.target_east_m
     alt = cfg.mission.cruise_altitude_m
     so = ApproachConfig.of(cfg).standoff
@@ -80,8 +81,8 @@ def components(cfg: MissionFile) -> None:
     print(f"== components ({load()})")
     cv2.setNumThreads(1)  # CPU of one core, comparable between paths
     ext = min(1000.0, geofence_extent_m(cfg))
-    fast = world_mod.SyntheticWorld(cfg.simulation, cfg.target, extent_m=ext)
-    slow = world_mod.SyntheticWorld(cfg.simulation, cfg.target, extent_m=ext)
+    fast = world_mod.SyntheticWorld(world_config(cfg), cfg.target, extent_m=ext)
+    slow = world_mod.SyntheticWorld(world_config(cfg), cfg.target, extent_m=ext)
     slow._bgra.update({lvl: None for lvl in range(len(slow.textures.base))})  # 3-channel path
     for cam in ("wide", "narrow"):
         model = getattr(cfg.cameras, cam).to_model(cam)

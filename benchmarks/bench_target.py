@@ -27,6 +27,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: E402
 from eaglemission.drivers.cameras.world import SyntheticWorld  # noqa: E402
+from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.estimators.bearing import BearingConfig, BearingEstimator  # noqa: E402
 from eaglemission.estimators.correspondence import order_corners  # noqa: E402
 from eaglemission.estimators.pixel_offset import PixelOffsetEstimator  # noqa: E402
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     cfg = load_config(check_plugins=False)
-    world = SyntheticWorld(cfg.simulation, cfg.target, seed=1, extent_m=80.0)
+    world = SyntheticWorld(world_config(cfg), cfg.target, seed=1, extent_m=80.0)
     narrow = cfg.cameras.narrow.to_model("narrow")
     wide = cfg.cameras.wide.to_model("wide")
     tgt = np.array(world.target_position_ned_m)

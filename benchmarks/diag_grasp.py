@@ -15,6 +15,7 @@ import json
 import logging
 
 import numpy as np
+from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.missions.campaign import randomise
 from eaglemission.missions.sim import run_simulation
 
@@ -33,7 +34,7 @@ def ablate(cfg, what):  # type: ignore[no-untyped-def]
     from eaglemission.config import MissionFile
 
     d = cfg.model_dump(mode="json")
-    sim, dyn = d["simulation"], d["vehicle"]["params"].setdefault("dynamics", {})
+    sim, dyn = d["world"]["params"], d["vehicle"]["params"].setdefault("dynamics", {})
     for w in what:
         if w == "focal":
             sim["focal_error_fraction"] = 0.0
@@ -78,7 +79,7 @@ def main() -> None:
         return pe - pt
 
     rows = [r for r in out.log.records if r.get("kind") in ("estimate", "state", "detection")]
-    sim = cfg.simulation
+    sim = world_config(cfg)
     print(json.dumps({k: sim.model_dump()[k] for k in (
         "target_yaw_deg", "ground_texture", "wind_ne_mps", "camera_time_offset_s")}))
     from eaglemission.drivers.cameras import world as world_mod

@@ -51,6 +51,7 @@ from eaglemission.interfaces import (
     MissionOutcome,
     PlaneFitter,
     Tracker,
+    World,
 )
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.safety import SafeVehicle
@@ -169,11 +170,25 @@ def detector_params(cfg: MissionFile, camera_id: str) -> dict[str, Any]:
     return merge_params(cfg.detector.params, over)
 
 
+def build_world(cfg: MissionFile) -> World | None:
+    """The simulated world of ``cfg`` (``world.type``), None when nothing is simulated."""
+    if cfg.world is None:
+        return None
+    world: World = registry.load("worlds", cfg.world.type, cfg.world.params)
+    return world
+
+
+def world_config(cfg: MissionFile) -> Any:
+    """The validated world params the fake drivers read (``simulation=`` in their context)."""
+    world = build_world(cfg)
+    return None if world is None else world.config
+
+
 def build_vehicle(cfg: MissionFile, clock: Clock, shared: SharedContext
                   ) -> tuple[Any, SafeVehicle]:
     """The vehicle plugin of ``cfg`` and its envelope wrapper (not connected)."""
     driver = registry.load("vehicles", cfg.vehicle.type, cfg.vehicle.params, clock=clock,
-                           safety=cfg.safety, simulation=cfg.simulation, shared=shared)
+                           safety=cfg.safety, simulation=world_config(cfg), shared=shared)
     return driver, SafeVehicle(driver, cfg.safety, clock=clock,
                                logger=logging.getLogger("eaglemission.safety"))
 
@@ -190,12 +205,13 @@ def assemble(cfg: MissionFile, clock: Clock, *,
     else:
         driver, safe, shared = vehicle
     pose = PoseSource(driver)
+    simulation = world_config(cfg)
     cameras: dict[str, Any] = {}
     for cid in CAMERAS:
         section = getattr(cfg.cameras, cid)
         cameras[cid] = registry.load(
             "cameras", section.type, section.params, model=section.to_model(cid), clock=clock,
-            camera_id=cid, target=cfg.target, simulation=cfg.simulation, safety=cfg.safety,
+            camera_id=cid, target=cfg.target, simulation=simulation, safety=cfg.safety,
             shared=shared, pose_source=pose)
     appearance = _appearance(cfg)
     detectors = {cid: registry.load("detectors", cfg.detector.type, detector_params(cfg, cid),

@@ -219,34 +219,6 @@ class SafetyConfig(StrictModel):
         return self
 
 
-class DistractorConfig(StrictModel):
-    kind: Literal["box", "disc", "stripe", "moving_box"] = "box"
-    north_m: Finite
-    east_m: Finite
-    size_m: PosFloat = 0.5
-    height_m: NonNegFloat = 0.1
-    color_bgr: tuple[int, int, int] = (40, 40, 200)
-    velocity_ne_mps: tuple[Finite, Finite] = (0.0, 0.0)
-
-
-class SimulationConfig(StrictModel):
-    """The simulated world (ground truth). Only fake drivers and the evaluator read it."""
-
-    seed: int = 0
-    target_north_m: Finite = 20.0
-    target_east_m: Finite = 5.0
-    target_yaw_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
-    ground_texture: Literal["vegetation", "soil", "snow", "grass"] = "vegetation"
-    distractors: list[DistractorConfig] = Field(default_factory=list)
-    light_gain: Annotated[float, Field(gt=0, le=4)] = 1.0
-    noise_sigma: Annotated[float, Field(ge=0, le=50)] = 2.0
-    wind_ne_mps: tuple[Finite, Finite] = (0.0, 0.0)
-    mount_error_deg: Annotated[float, Field(ge=0, le=10)] = 0.0
-    focal_error_fraction: Annotated[float, Field(ge=0, le=0.2)] = 0.0
-    camera_time_offset_s: Annotated[float, Field(ge=0, le=0.2)] = 0.0
-    frame_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
-
-
 class MissionFile(StrictModel):
     """A whole mission configuration file."""
 
@@ -262,7 +234,9 @@ class MissionFile(StrictModel):
     tool_point_m: XYZm = (0.0, 0.0, 0.3)
     mission: MissionConfig
     safety: SafetyConfig = Field(default_factory=SafetyConfig)
-    simulation: SimulationConfig | None = None
+    world: PluginSection | None = None
+    """The simulated world the fake drivers share (ground truth; ``eaglemission plugins``
+    lists the ``worlds``); ``null`` for flights with nothing simulated."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -348,6 +322,19 @@ def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
                     params[key] = value
                     warnings.append(f"mission.{key}: moved to mission.params.{key} (read for "
                                     "this release; write it there)")
+    if "simulation" in data:
+        data = copy.deepcopy(data)
+        simulation = data.pop("simulation")
+        if "world" in data:
+            raise ConfigError("simulation: moved to world.params (world.type: synthetic); "
+                              "given both `simulation` and `world`: keep only `world`")
+        if simulation is not None:
+            data["world"] = {"type": "synthetic", "params": simulation}
+        warnings.append("simulation: moved to world.params with world.type: synthetic (read "
+                        "for this release; write it there)")
+        mission = data.get("mission")
+        params = mission.get("params") if isinstance(mission, dict) else None
+        detector = data.get("detector")
     if not isinstance(params, dict) or not isinstance(detector, dict):
         return data, warnings
     moved = [k for k in ("detector_downscale", "narrow_threshold", "colour_tolerance")
@@ -451,6 +438,8 @@ def plugin_sections(cfg: MissionFile) -> list[tuple[str, str, str, dict[str, Any
         *([("trackers", "tracker", cfg.tracker.type, cfg.tracker.params)]
           if cfg.tracker is not None else []),
         ("missions", "mission", cfg.mission.type, cfg.mission.params),
+        *([("worlds", "world", cfg.world.type, cfg.world.params)]
+          if cfg.world is not None else []),
     ]
 
 

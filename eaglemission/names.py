@@ -3,7 +3,7 @@
 ENTRY_POINT_PREFIX = "eaglemission."
 
 ROLES: tuple[str, ...] = ("cameras", "vehicles", "detectors", "estimators", "fitters",
-                          "trackers", "missions")
+                          "trackers", "missions", "worlds")
 
 CAMERA_WIDE = "wide"
 CAMERA_NARROW = "narrow"

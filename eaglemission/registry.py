@@ -1,8 +1,8 @@
 """Plugin registry: entry points, one group per role, checked against the role's Protocol.
 
 Plugins are loaded only from entry points (``eaglemission.cameras``, ``.vehicles``,
-``.detectors``, ``.estimators``, ``.missions``); a config can never name an import path. A
-plugin class declares ``Config`` (a pydantic model of its params, with defaults) and a one-line
+``.detectors``, ``.estimators``, ``.fitters``, ``.trackers``, ``.missions``, ``.worlds``); a
+config can never name an import path. A plugin class declares ``Config`` (a pydantic model of its params, with defaults) and a one-line
 ``description``; ``load(role, name, params, **context)`` validates the params with that model
 and constructs the plugin as ``cls(config=..., **context)``.
 """
@@ -28,6 +28,7 @@ from eaglemission.interfaces import (
     PlaneFitter,
     Tracker,
     Vehicle,
+    World,
 )
 from eaglemission.names import ENTRY_POINT_PREFIX, ROLES
 
@@ -39,6 +40,7 @@ PROTOCOLS: dict[str, type] = {
     "fitters": PlaneFitter,
     "trackers": Tracker,
     "missions": Mission,
+    "worlds": World,
 }
 
 

@@ -18,56 +18,20 @@ from typing import Any
 
 import numpy as np
 
-from eaglemission.config import DistractorConfig, MissionFile, load_config
-
-TEXTURES = ("vegetation", "soil", "snow", "grass")
+from eaglemission.assembly import build_world
+from eaglemission.config import MissionFile, load_config
 
 
 def randomise(cfg: MissionFile, rng: np.random.RandomState) -> MissionFile:
-    """A copy of ``cfg`` with a randomised simulated world (pure given the RNG state)."""
-    sim = cfg.simulation
-    if sim is None:
-        raise ValueError("simulation: the campaign needs a `simulation` section")
-    route = np.array([(w.north_m, w.east_m) for w in cfg.mission.route])
-    # along the route (between 35% and 75% of its length), up to 3 m to either side
-    seg_len = np.linalg.norm(np.diff(route, axis=0), axis=1) if len(route) > 1 else np.ones(1)
-    s = rng.uniform(0.35, 0.75) * float(seg_len.sum())
-    i = int(np.searchsorted(np.cumsum(seg_len), s)) if len(route) > 1 else 0
-    i = min(i, len(route) - 2) if len(route) > 1 else 0
-    a = route[i]
-    b = route[i + 1] if len(route) > 1 else route[i] + np.array([1.0, 0.0])
-    start = float(np.cumsum(seg_len)[i - 1]) if i > 0 else 0.0
-    u = (b - a) / max(1e-9, float(np.linalg.norm(b - a)))
-    side = np.array([-u[1], u[0]])
-    p = a + u * (s - start) + side * rng.uniform(-3.0, 3.0)
-    distractors = []
-    for _ in range(int(rng.randint(0, 3))):
-        for _try in range(20):
-            dn = a + u * rng.uniform(0.2, 1.0) * float(seg_len.sum()) + side * rng.uniform(-6, 6)
-            if np.linalg.norm(dn - p) >= 4.0:
-                break
-        c = rng.randint(20, 235, size=3)
-        distractors.append(DistractorConfig(
-            kind=("box", "disc", "stripe")[int(rng.randint(0, 3))], north_m=float(dn[0]),
-            east_m=float(dn[1]), size_m=float(rng.uniform(0.3, 0.8)),
-            height_m=float(rng.uniform(0.0, 0.2)),
-            color_bgr=(int(c[0]), int(c[1]), int(c[2]))))
-    wind_speed = rng.uniform(0.0, 3.0)
-    wind_dir = rng.uniform(-math.pi, math.pi)
-    new_sim = sim.model_copy(update={
-        "seed": int(rng.randint(0, 2**31 - 1)),
-        "target_north_m": float(p[0]), "target_east_m": float(p[1]),
-        "target_yaw_deg": float(rng.uniform(-180.0, 180.0)),
-        "ground_texture": TEXTURES[int(rng.randint(0, len(TEXTURES)))],
-        "distractors": distractors,
-        "light_gain": float(rng.uniform(0.7, 1.3)),
-        "wind_ne_mps": (float(wind_speed * math.cos(wind_dir)),
-                        float(wind_speed * math.sin(wind_dir))),
-        "mount_error_deg": 2.0,
-        "focal_error_fraction": 0.03,
-        "camera_time_offset_s": float(rng.uniform(0.0, 0.040)),
-    })
-    return MissionFile.model_validate({**cfg.model_dump(), "simulation": new_sim.model_dump()})
+    """A copy of ``cfg`` with a randomised simulated world (pure given the RNG state): the
+    world plugin draws the variant (``World.randomised_params``)."""
+    world = build_world(cfg)
+    if world is None or cfg.world is None:
+        raise ValueError("world: the campaign needs a simulated world (`world:` section)")
+    route = [(w.north_m, w.east_m) for w in cfg.mission.route]
+    params = world.randomised_params(rng, route)
+    return MissionFile.model_validate(
+        {**cfg.model_dump(), "world": {"type": cfg.world.type, "params": params}})
 
 
 def _one_run(job: tuple[int, dict[str, Any], str | None]) -> dict[str, Any]:
@@ -84,7 +48,7 @@ def _one_run(job: tuple[int, dict[str, Any], str | None]) -> dict[str, Any]:
     except Exception as exc:  # a crashed run is a failure with its reason, not a lost campaign
         return {"run": index, "crashed": True, "success": False,
                 "explanation": f"crashed: {type(exc).__name__}: {exc}",
-                "sim": cfg.simulation.model_dump() if cfg.simulation else None}
+                "sim": cfg.world.params if cfg.world else None}
     ev = out.evaluation
     return {"run": index, "crashed": False, "success": ev.success,
             "reached_grasp_ready": ev.reached_grasp_ready, "final_state": ev.final_state,
@@ -93,7 +57,7 @@ def _one_run(job: tuple[int, dict[str, Any], str | None]) -> dict[str, Any]:
             "horizontal_error_m": ev.horizontal_error_m, "grasp_distance_m": ev.grasp_distance_m,
             "violations": [v.__dict__ for v in ev.violations], "explanation": ev.explanation,
             "speedup": out.speedup, "latency_p90_ms": out.result.latency_p90_ms,
-            "sim": cfg.simulation.model_dump() if cfg.simulation else None}
+            "sim": cfg.world.params if cfg.world else None}
 
 
 @dataclass

@@ -15,6 +15,7 @@ from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.guidance import grasp_position, standoff_position, yaw_towards_deg
 from pydantic import ValidationError
 
+from eaglemission.commands.checks import simulated_world
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel, camera_pose_ned, euler_to_quat
 from eaglemission.safety import Envelope, braking_distance_m
@@ -106,8 +107,9 @@ def check_mission_geometry(cfg: MissionFile) -> list[str]:
                 f"{span_px:.1f} wide-camera px where the optical axis meets the ground "
                 f"({axis_range:.1f} m away), below {MIN_TARGET_PX_AT_CRUISE:g} px: fly lower")
     # 3. geofence: standoff and grasp pose around the simulated target must be inside
-    if cfg.simulation is not None and m.route:
-        tn, te = cfg.simulation.target_north_m, cfg.simulation.target_east_m
+    world = simulated_world(cfg)
+    if world is not None and m.route:
+        tn, te = world.target_ne_m()
         start = min(((w.north_m, w.east_m) for w in m.route),
                     key=lambda p: math.dist(p, (tn, te)))
         yaw = yaw_towards_deg(start, (tn, te)) if math.dist(start, (tn, te)) > 1e-6 else 0.0

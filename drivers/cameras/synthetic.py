@@ -1,6 +1,6 @@
 """``synthetic`` camera plugin: renders :class:`SyntheticWorld` from the TRUE vehicle pose.
 
-Time convention (``SimulationConfig.camera_time_offset_s`` = ``dt``): ``grab`` stamps the frame
+Time convention (``SyntheticWorldConfig.camera_time_offset_s`` = ``dt``): ``grab`` stamps the frame
 with the clock's current time ``t`` (taken as mid-exposure) but renders the world and the
 vehicle pose at ``t - dt``. The camera's stamps are therefore *late* by ``dt`` with respect to
 the telemetry, like an uncompensated USB/driver latency on a real rig: a pipeline that looks up
@@ -18,10 +18,11 @@ from dataclasses import replace
 from typing import Any
 
 from eaglemission.drivers.cameras.world import GroundTruth, SyntheticWorld
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig, world_config
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.clock import Clock, MonotonicClock
-from eaglemission.config import MissionFile, SimulationConfig, TargetConfig
+from eaglemission.config import MissionFile, TargetConfig
 from eaglemission.context import WORLD, SharedContext
 from eaglemission.errors import ConfigError, GrabTimeout
 from eaglemission.geometry import CameraModel
@@ -50,7 +51,7 @@ class SyntheticCamera:
     def __init__(self, config: Config | None = None, *, model: CameraModel,
                  clock: Clock | None = None, world: SyntheticWorld | None = None,
                  pose_source: PoseSource | None = None, camera_id: str | None = None,
-                 simulation: SimulationConfig | None = None, target: TargetConfig | None = None,
+                 simulation: SyntheticWorldConfig | None = None, target: TargetConfig | None = None,
                  shared: SharedContext | None = None, safety: Any = None,
                  **_context: Any) -> None:
         self.config = config or self.Config()
@@ -61,7 +62,7 @@ class SyntheticCamera:
             if simulation is None or target is None:
                 raise ConfigError(
                     f"cameras.{self.camera_id}.type: a synthetic camera renders the simulated "
-                    "world: add the `simulation` section (the world) to the mission file")
+                    "world: add a `world:` section (type: synthetic) to the mission file")
             world = shared_world(shared, simulation, target, safety)
         if pose_source is None:
             raise ConfigError(
@@ -158,13 +159,14 @@ class SyntheticCamera:
     @classmethod
     def config_problems(cls, mission: MissionFile, path: str) -> list[str]:
         """``validate``: a synthetic camera needs the world it renders."""
-        if mission.simulation is None:
-            return [f"{path}.type: a synthetic camera renders the simulated world: add the "
-                    "`simulation` section, or use a real camera (genicam) or replay"]
+        if world_config(mission) is None:
+            return [f"{path}.type: a synthetic camera renders the simulated world: add a "
+                    "`world:` section (type: synthetic), or use a real camera (genicam) or "
+                    "replay"]
         return []
 
 
-def shared_world(shared: SharedContext | None, simulation: SimulationConfig,
+def shared_world(shared: SharedContext | None, simulation: SyntheticWorldConfig,
                  target: TargetConfig, safety: Any = None) -> SyntheticWorld:
     """The flight's one world (both cameras render the same; the evaluator reads its target),
     built on first use and kept in the assembly's shared context."""
@@ -177,7 +179,7 @@ def shared_world(shared: SharedContext | None, simulation: SimulationConfig,
     return build() if shared is None else shared.get_or_create(WORLD, build)
 
 
-def world_extent_m(simulation: SimulationConfig, safety: Any = None) -> float:
+def world_extent_m(simulation: SyntheticWorldConfig, safety: Any = None) -> float:
     """Side of a square around home covering the geofence, the target and the distractors."""
     reach = [math.hypot(simulation.target_north_m, simulation.target_east_m)]
     reach += [math.hypot(d.north_m, d.east_m) for d in simulation.distractors]
@@ -191,7 +193,7 @@ def world_extent_m(simulation: SimulationConfig, safety: Any = None) -> float:
 
 def geofence_extent_m(config: MissionFile) -> float:
     """Side of a square around home covering the geofence, the target and the distractors."""
-    return world_extent_m(config.simulation or SimulationConfig(), config.safety)
+    return world_extent_m(world_config(config) or SyntheticWorldConfig(), config.safety)
 
 
 def make_synthetic_rig(config: MissionFile, pose_source: PoseSource, clock: Clock, *,
@@ -200,12 +202,12 @@ def make_synthetic_rig(config: MissionFile, pose_source: PoseSource, clock: Cloc
     :class:`~eaglemission.drivers.cameras.rig.CameraRig` (``rig.world`` is the world).
 
     The cameras use the NOMINAL models of ``config.cameras``; the world renders them with
-    the realism knobs of ``config.simulation`` applied.
+    the realism knobs of the config's ``world`` applied.
     """
     from eaglemission.drivers.cameras.rig import CameraRig
 
     if world is None:
-        world = shared_world(None, config.simulation or SimulationConfig(), config.target,
+        world = shared_world(None, world_config(config) or SyntheticWorldConfig(), config.target,
                              config.safety)
     cams = {}
     for cid in ("wide", "narrow"):

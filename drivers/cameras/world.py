@@ -18,7 +18,7 @@ Rendering (docs/cameras.md, "Synthetic world"):
 4. lighting gain, lens distortion (if the model has any: the pinhole render is remapped),
    additive Gaussian noise from a pre-drawn bank.
 
-Realism knobs (``SimulationConfig``) make the rendering camera differ from the nominal
+Realism knobs (``SyntheticWorldConfig``) make the rendering camera differ from the nominal
 :class:`CameraModel` the estimators use: ``mount_error_deg`` (a fixed random rotation, per
 camera, of at most that angle), ``focal_error_fraction`` (true focal = nominal x (1 + e),
 ``|e| <=`` the fraction, per camera). ``camera_time_offset_s`` is applied by
@@ -58,9 +58,10 @@ from eaglemission.drivers.cameras.world_ground import (
     SKY_ZENITH_BGR,
     GroundRenderer,
 )
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 from numpy.typing import NDArray
 
-from eaglemission.config import SimulationConfig, TargetConfig
+from eaglemission.config import TargetConfig
 from eaglemission.geometry import (
     R_FRD_FROM_OPTICAL,
     CameraModel,
@@ -149,10 +150,10 @@ class SyntheticWorld:
     truth_history : ground-truth records kept per camera
     """
 
-    def __init__(self, simulation: SimulationConfig | None, target: TargetConfig, *,
+    def __init__(self, simulation: SyntheticWorldConfig | None, target: TargetConfig, *,
                  seed: int | None = None, extent_m: float | None = None,
                  base_texel_m: float = 0.05, truth_history: int = 2000) -> None:
-        self.simulation = simulation or SimulationConfig()
+        self.simulation = simulation or SyntheticWorldConfig()
         self.target = target
         self.seed = int(self.simulation.seed if seed is None else seed)
         sim = self.simulation

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from eaglemission.drivers.worlds.synthetic import DistractorConfig
 from numpy.typing import NDArray
 
-from eaglemission.config import DistractorConfig
 from eaglemission.geometry import rot_z
 
 NEAR_PLANE_M = 0.02

@@ -18,6 +18,8 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
+from eaglemission.drivers.worlds.synthetic import world_config
+
 from eaglemission.commands import Command
 from eaglemission.errors import ConfigError
 
@@ -126,8 +128,9 @@ def emulator_settings_from_mission(path: str) -> dict[str, object]:
 
     cfg = load_config(path, check_plugins=False)
     out: dict[str, object] = {}
-    if cfg.simulation is not None:
-        out.update(seed=cfg.simulation.seed, wind_ne_mps=tuple(cfg.simulation.wind_ne_mps))
+    world = world_config(cfg)
+    if world is not None:
+        out.update(seed=world.seed, wind_ne_mps=tuple(world.wind_ne_mps))
     vp = (SimulatedVehicleConfig.model_validate(dict(cfg.vehicle.params))
           if cfg.vehicle.type == "simulated" else SimulatedVehicleConfig())
     out["dynamics"] = speeds_within_envelope(vp.dynamics, cfg.safety).model_dump()

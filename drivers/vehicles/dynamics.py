@@ -206,7 +206,7 @@ class MulticopterDynamics:
         Limits and time constants (defaults when None).
     seed : int
         Seeds the estimate drift and the gusts; same seed + same commands = same trajectory.
-    wind_ne_mps : (north, east) mean wind in m/s (``SimulationConfig.wind_ne_mps``).
+    wind_ne_mps : (north, east) mean wind in m/s (``SyntheticWorldConfig.wind_ne_mps``).
     start_time_ns : model time of the initial state (the vehicle's clock at creation).
     estimate : EstimateModel or None
         The estimate error model; built from ``params`` when None.

@@ -37,10 +37,11 @@ from eaglemission.drivers.vehicles.simulated_config import (
 from eaglemission.drivers.vehicles.simulated_faults import SimulatedFaults
 from eaglemission.drivers.vehicles.simulated_state import estimated_state, true_state
 from eaglemission.drivers.vehicles.truth_log import TruthLog
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 from numpy.typing import NDArray
 
 from eaglemission.clock import Clock, MonotonicClock
-from eaglemission.config import SafetyConfig, SimulationConfig
+from eaglemission.config import SafetyConfig
 from eaglemission.errors import VehicleError
 from eaglemission.telemetry import TelemetryHistory
 from eaglemission.types import (
@@ -92,12 +93,12 @@ class SimulatedModel:
     config : SimulatedVehicleConfig or None
     clock : any eaglemission Clock (``LoopClock`` under ``VirtualTimeLoop``, ``ManualClock``
         in unit tests); defaults to the host monotonic clock.
-    simulation : SimulationConfig or None (wind, seed)
+    simulation : SyntheticWorldConfig or None (wind, seed)
     safety : SafetyConfig or None: the autopilot's own speeds are set inside it (unless given)
     """
 
     def __init__(self, config: SimulatedVehicleConfig | None = None, *, clock: Clock | None = None,
-                 simulation: SimulationConfig | None = None, safety: SafetyConfig | None = None,
+                 simulation: SyntheticWorldConfig | None = None, safety: SafetyConfig | None = None,
                  **_context: Any) -> None:
         cfg = config or SimulatedVehicleConfig()
         if safety is not None:  # the autopilot's own speeds inside the envelope (unless given)

@@ -10,7 +10,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from importlib.metadata import entry_points
 
+from eaglemission import registry
 from eaglemission.config import MissionFile
+from eaglemission.errors import ConfigError, PluginError
+from eaglemission.interfaces import World
 
 Check = Callable[[MissionFile], list[str]]
 
@@ -48,12 +51,23 @@ def core_checks(cfg: MissionFile) -> list[str]:
                 f"cameras.{cid}.resolution_px: {list(cam.resolution_px)} disagrees with the "
                 f"calibration file ({cal.width_px}x{cal.height_px}): calibrate at the "
                 "resolution you fly, or drop resolution_px")
-    if cfg.simulation is not None:
-        sim = cfg.simulation
-        if not inside_geofence(s.geofence, sim.target_north_m, sim.target_east_m):
-            problems.append("simulation.target_north_m/target_east_m: the simulated target lies "
-                            "outside safety.geofence")
+    world = simulated_world(cfg)
+    if world is not None and not inside_geofence(s.geofence, *world.target_ne_m()):
+        problems.append("world.params.target_north_m/target_east_m: the simulated target lies "
+                        "outside safety.geofence")
     return problems
+
+
+def simulated_world(cfg: MissionFile) -> World | None:
+    """The world plugin of ``cfg`` for checks; None when there is none or its params are
+    invalid (reported by the plugin check of ``world``)."""
+    if cfg.world is None:
+        return None
+    try:
+        world: World = registry.load("worlds", cfg.world.type, cfg.world.params)
+        return world
+    except (ConfigError, PluginError):
+        return None  # reported by the plugin check of `world`
 
 
 def run_checks(cfg: MissionFile) -> list[str]:

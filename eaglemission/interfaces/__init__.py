@@ -8,6 +8,8 @@ from eaglemission.interfaces.mission import FlightParts, Mission, MissionHooks, 
 from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
+from eaglemission.interfaces.world import World
 
 __all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "GroundTruth",
-           "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter", "Tracker", "Vehicle"]
+           "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter", "Tracker", "Vehicle",
+           "World"]

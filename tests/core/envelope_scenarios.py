@@ -11,9 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from eaglemission.drivers.vehicles.dynamics import DynamicsParams
 from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 
 from eaglemission.clock import ManualClock
-from eaglemission.config import GeofenceConfig, SafetyConfig, SimulationConfig
+from eaglemission.config import GeofenceConfig, SafetyConfig
 from eaglemission.safety import SafeVehicle
 from eaglemission.types import Setpoint
 
@@ -96,7 +97,7 @@ async def fly(sc: Scenario) -> tuple[Excursion, SimulatedVehicle, SafeVehicle]:
             dynamics=DynamicsParams(wind_gust_std_mps=sc.gust_std_mps),
             telemetry_rate_hz=25.0,
             initial_altitude_m=0.5 * (sc.min_altitude_m + sc.max_altitude_m)),
-        clock=clock, simulation=SimulationConfig(seed=sc.seed, wind_ne_mps=sc.wind_ne_mps))
+        clock=clock, simulation=SyntheticWorldConfig(seed=sc.seed, wind_ne_mps=sc.wind_ne_mps))
     safe = SafeVehicle(sim, sc.safety(), clock=clock)
     await safe.connect()
     await clock.sleep(0.3)  # the wind starts pushing the hovering vehicle

@@ -107,8 +107,6 @@ MUTATIONS: list[tuple[str, Any, str]] = [
     ("safety.low_battery_fraction", 1.5, "safety.low_battery_fraction: must be <= 1, got 1.5"),
     ("safety.link_loss_action", "panic", "safety.link_loss_action: must be one of 'hold', 'return' or 'land'"),
     ("safety.on_violation", True, "safety.on_violation: must be one of 'clamp' or 'refuse'"),
-    ("simulation.mount_error_deg", 45, "simulation.mount_error_deg: must be <= 10, got 45"),
-    ("simulation.seed", "seven", "simulation.seed: must be an integer, got 'seven'"),
     ("estimators.fine", DELETE, "estimators.fine: required key is missing"),
     ("estimators.coarse.kind", "bearing", "estimators.coarse.kind: unknown key; allowed keys: type, params"),
     ("detector", None, "detector: must be a mapping"),
@@ -124,6 +122,8 @@ def test_malformed_variant_of_shipped_config(path: str, value: Any, expected: st
 
 
 MISSION_PARAM_MUTATIONS = [
+    ("world.params.mount_error_deg", 45, "world.params.mount_error_deg: must be <= 10, got 45"),
+    ("world.params.seed", "seven", "world.params.seed: must be an integer, got 'seven'"),
     ("mission.params.grasp_distance_m", 5, "mission.params.grasp_distance_m: must be <= 2, got 5"),
     ("mission.params.confirm_frames", 2.5, "mission.params.confirm_frames: must be an integer, got 2.5"),
     ("mission.params.timeouts.fine_approach_s", -1,
@@ -158,6 +158,23 @@ def test_moved_mission_key_is_read_with_a_warning_and_conflicts_are_refused() ->
     data["mission"]["params"].pop("grasp_distance_m")
     data["mission"]["grasp_distance_m"] = 5
     with pytest.raises(ConfigError, match="mission.params.grasp_distance_m: must be <= 2"):
+        validate_mapping(data)
+
+
+def test_old_simulation_section_is_read_as_the_synthetic_world_with_a_warning() -> None:
+    data = shipped_data()
+    world = data.pop("world")
+    data["simulation"] = world["params"]
+    warnings: list[str] = []
+    cfg = validate_mapping(data, warnings=warnings)
+    assert cfg.world is not None and cfg.world.type == "synthetic"
+    assert cfg.world.params == world["params"]
+    assert any(w.startswith("simulation: moved to world.params") for w in warnings), warnings
+    data["simulation"]["mount_error_deg"] = 45  # errors name the new place
+    with pytest.raises(ConfigError, match="world.params.mount_error_deg: must be <= 10"):
+        validate_mapping(data)
+    data["world"] = world
+    with pytest.raises(ConfigError, match="keep only `world`"):
         validate_mapping(data)
 
 
@@ -310,7 +327,7 @@ def test_validate_cli_refuses_a_replay_without_its_recording(tmp_path: Path) -> 
 
 def test_validate_cli_refuses_synthetic_cameras_without_a_world(tmp_path: Path) -> None:
     data = shipped_data()
-    del data["simulation"]
+    del data["world"]
     f = tmp_path / "m.yaml"
     f.write_text(yaml.safe_dump(data))
     r = run_cli("validate", str(f))

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 import pytest
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig, world_config
 from world_helpers import detection_from_polygon
 
-from eaglemission.config import SimulationConfig
 from eaglemission.fov import (
     map_points,
     narrow_fov_in_wide,
@@ -32,7 +32,7 @@ def mission():
 @pytest.fixture(scope="module")
 def world(mission):
     world_mod = pytest.importorskip("eaglemission.drivers.cameras.world")
-    return world_mod.SyntheticWorld(mission.simulation, mission.target, seed=1, extent_m=80.0)
+    return world_mod.SyntheticWorld(world_config(mission), mission.target, seed=1, extent_m=80.0)
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +125,7 @@ def test_feature_refinement_recovers_a_mount_error(mission, cams):
     from eaglemission.drivers.cameras.world import SyntheticWorld
 
     wide, narrow = cams
-    sim = SimulationConfig(**{**mission.simulation.model_dump(), "mount_error_deg": 1.5,
+    sim = SyntheticWorldConfig(**{**world_config(mission).model_dump(), "mount_error_deg": 1.5,
                               "noise_sigma": 1.0})
     w = SyntheticWorld(sim, mission.target, seed=3, extent_m=60.0)
     pos = np.array([10.0, 1.5, -4.0])

@@ -11,12 +11,13 @@ import os
 import numpy as np
 import pytest
 from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 from envelope_scenarios import Leg, Scenario, fly
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from eaglemission.clock import ManualClock
-from eaglemission.config import GeofenceConfig, SafetyConfig, SimulationConfig
+from eaglemission.config import GeofenceConfig, SafetyConfig
 from eaglemission.errors import SafetyViolation
 from eaglemission.geometry import geodetic_to_ned, ned_to_geodetic
 from eaglemission.interfaces import Vehicle
@@ -36,7 +37,7 @@ TOL_SPEED_MPS = 0.1
 
 async def _flying(safety: SafetyConfig, *, seed: int = 3) -> tuple[SafeVehicle, SimulatedVehicle, ManualClock]:
     clock = ManualClock()
-    sim = SimulatedVehicle(clock=clock, simulation=SimulationConfig(seed=seed))
+    sim = SimulatedVehicle(clock=clock, simulation=SyntheticWorldConfig(seed=seed))
     safe = SafeVehicle(sim, safety, clock=clock, logger=logging.getLogger("test.safety"))
     await safe.connect()
     await safe.arm()

@@ -11,8 +11,9 @@ from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
 from eaglemission.detectors.dtdmi import equations as eq
 from eaglemission.detectors.dtdmi.detector import resolve
 from eaglemission.drivers.cameras.world import SyntheticWorld
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 
-from eaglemission.config import SimulationConfig, TargetConfig
+from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount, euler_to_quat
 from eaglemission.types import Frame
 
@@ -77,7 +78,7 @@ def _setup(texture: str):
         "wide", focal_length_mm=2.8, pixel_size_um=3.75 * 1280 / W, resolution_px=(W, H),
         mount=CameraMount(pitch_deg=-30.0, lever_arm_m=(0.10, -0.03, 0.05)))
     target = TargetConfig(length_m=0.40, width_m=0.25, height_m=0.15, color_bgr=(30, 40, 210))
-    sim = SimulationConfig(seed=3, target_north_m=12.0, target_east_m=0.8, target_yaw_deg=20.0,
+    sim = SyntheticWorldConfig(seed=3, target_north_m=12.0, target_east_m=0.8, target_yaw_deg=20.0,
                            noise_sigma=2.0, frame_rate_hz=FPS, ground_texture=texture)
     world = SyntheticWorld(sim, target, seed=3, extent_m=60.0)
     empty = SyntheticWorld(sim.model_copy(update={"target_north_m": -30.0}), target, seed=3,

@@ -8,10 +8,13 @@ from eaglemission.config import MissionFile
 
 
 def variant(cfg: MissionFile, **sections: dict[str, Any]) -> MissionFile:
-    """A copy of ``cfg`` with some sections' keys replaced (validated again)."""
+    """A copy of ``cfg`` with some sections' keys replaced (validated again); ``world_params``
+    updates keys of ``world.params``."""
     data = cfg.model_dump()
     for name, updates in sections.items():
-        if isinstance(data.get(name), dict):
+        if name == "world_params":
+            data["world"]["params"] = {**data["world"]["params"], **updates}
+        elif isinstance(data.get(name), dict):
             data[name] = {**data[name], **updates}
         else:
             data[name] = updates

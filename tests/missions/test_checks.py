@@ -28,7 +28,7 @@ def test_altitude_band_and_geofence() -> None:
     low = variant(cfg, safety={"max_altitude_m": 1.0, "min_altitude_m": 0.0})
     assert any("altitude" in p for p in check_mission_geometry(low))
     fence = variant(cfg, safety={"geofence": {"radius_m": 21.0}},
-                    simulation={"target_north_m": 20.5, "target_east_m": 0.0})
+                    world_params={"target_north_m": 20.5, "target_east_m": 0.0})
     assert any(p.startswith("safety.geofence") for p in check_mission_geometry(fence))
     high = variant(cfg, mission={"cruise_altitude_m": 19.0})
     assert any("cruise_altitude_m" in p for p in check_mission_geometry(high))

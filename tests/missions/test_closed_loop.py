@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.missions.approach import ApproachConfig
 from eaglemission.missions.log import read_log
 from eaglemission.missions.sim import effective_vehicle_config, run_simulation
@@ -121,7 +122,7 @@ def test_short_perception_faults_are_bridged(fast_config: MissionFile, tmp_path:
 
 def test_geofence_at_the_target(fast_config: MissionFile, tmp_path: Path) -> None:
     """The target sits at the fence: the grasp pose lies outside it -> the configured action."""
-    sim = fast_config.simulation
+    sim = world_config(fast_config)
     cfg = variant(fast_config, safety={"geofence": {"radius_m": 22.5}},
                   mission={"route": [{"north_m": 0.0, "east_m": 0.0},
                                      {"north_m": 18.0, "east_m": 0.0}]})
@@ -169,7 +170,7 @@ def test_rangefinder_removes_the_altitude_estimate_error_from_the_grasp_height(
         "dynamics": {"estimate_vertical_std_m": 1.0, "estimate_max_error_m": 0.12,
                      "estimate_correlation_time_s": 1.0e6}}}
     cfg = variant(fast_config, vehicle=vehicle,
-                  simulation={"wind_ne_mps": (0.0, 0.0), "mount_error_deg": 0.0,
+                  world_params={"wind_ne_mps": (0.0, 0.0), "mount_error_deg": 0.0,
                               "focal_error_fraction": 0.0})
     m = ApproachConfig.of(cfg)
     with_rf = run_simulation(cfg, keep_log=False)
@@ -200,7 +201,7 @@ def test_plane_from_apparent_size_measures_the_altitude_estimate_error(
         "seed": 3, "dynamics": {"estimate_vertical_std_m": 1.0, "estimate_max_error_m": 0.12,
                                 "estimate_correlation_time_s": 1.0e6}}}
     cfg = variant(fast_config, vehicle=vehicle,
-                  simulation={"wind_ne_mps": (0.0, 0.0), "mount_error_deg": 0.0,
+                  world_params={"wind_ne_mps": (0.0, 0.0), "mount_error_deg": 0.0,
                               "focal_error_fraction": 0.0})
     cfg = variant(cfg, mission={"params": {**cfg.mission.params, "plane_from_size": True}})
     out = run_simulation(cfg)

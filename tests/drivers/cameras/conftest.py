@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import pytest
 from _camera_helpers import TARGET_NE
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 
-from eaglemission.config import SimulationConfig, TargetConfig
+from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount
 
 
 @pytest.fixture
-def sim_config() -> SimulationConfig:
-    return SimulationConfig(seed=3, target_north_m=TARGET_NE[0], target_east_m=TARGET_NE[1],
+def sim_config() -> SyntheticWorldConfig:
+    return SyntheticWorldConfig(seed=3, target_north_m=TARGET_NE[0], target_east_m=TARGET_NE[1],
                             target_yaw_deg=35.0, ground_texture="snow", noise_sigma=0.0,
                             mount_error_deg=2.0, focal_error_fraction=0.03)
 

@@ -10,6 +10,7 @@ from _camera_helpers import StaticPose, looking_at_target
 from eaglemission.drivers.cameras.rig import CameraRig
 from eaglemission.drivers.cameras.synthetic import SyntheticCamera, make_synthetic_rig
 from eaglemission.drivers.cameras.world import SyntheticWorld
+from eaglemission.drivers.worlds.synthetic import world_config
 
 from eaglemission import registry
 from eaglemission.clock import ManualClock
@@ -49,7 +50,7 @@ def test_no_pose_is_a_grab_timeout(sim_config, target_config, wide_model):
 
 def test_make_synthetic_rig_from_the_default_mission(sitl_config):
     clock = ManualClock(1_000_000_000)
-    sim = sitl_config.simulation
+    sim = world_config(sitl_config)
     tn, te = sim.target_north_m, sim.target_east_m
     pose = StaticPose((tn - 8.0, te, -5.0), (1.0, 0.0, 0.0, 0.0))
     rig = make_synthetic_rig(sitl_config, pose, clock)

@@ -11,9 +11,9 @@ import pytest
 from _camera_helpers import StaticPose, looking_at_target
 from eaglemission.drivers.cameras.synthetic import SyntheticCamera
 from eaglemission.drivers.cameras.world import SyntheticWorld, clip_polygon, polygon_area
+from eaglemission.drivers.worlds.synthetic import DistractorConfig, SyntheticWorldConfig
 
 from eaglemission.clock import ManualClock
-from eaglemission.config import DistractorConfig, SimulationConfig
 from eaglemission.geometry import angle_between_rotations_deg, euler_to_quat
 from eaglemission.types import Frame
 
@@ -121,7 +121,7 @@ def test_stripping_ground_truth_gives_identical_frames(sim_config, target_config
 
 
 def test_rendering_is_deterministic_for_a_seed(target_config, wide_model):
-    sim = SimulationConfig(seed=5, target_north_m=10, target_east_m=2, noise_sigma=2.0,
+    sim = SyntheticWorldConfig(seed=5, target_north_m=10, target_east_m=2, noise_sigma=2.0,
                            ground_texture="grass", mount_error_deg=1.0)
     pos, q = looking_at_target(5.0, 0.0)
     a, _ = SyntheticWorld(sim, target_config, extent_m=60.0).render(wide_model, pos, q, 7)
@@ -153,7 +153,7 @@ def test_sky_above_horizon_only(sim_config, target_config, wide_model):
 
 def test_ground_texture_is_sharp_at_close_range(target_config, narrow_model):
     """The narrow camera at 0.6 m sees texture detail, not a blurred blob."""
-    sim = SimulationConfig(seed=1, target_north_m=30, target_east_m=0, noise_sigma=0.0,
+    sim = SyntheticWorldConfig(seed=1, target_north_m=30, target_east_m=0, noise_sigma=0.0,
                            ground_texture="vegetation")
     world = SyntheticWorld(sim, target_config, extent_m=80.0)
     img, _ = world.render(narrow_model, (0, 0, -0.6), euler_to_quat(0, 0, 0), 1)
@@ -164,7 +164,7 @@ def test_ground_texture_is_sharp_at_close_range(target_config, narrow_model):
 
 
 def test_distractors_are_drawn_and_move(target_config, wide_model):
-    sim = SimulationConfig(seed=2, target_north_m=30, target_east_m=0, noise_sigma=0.0,
+    sim = SyntheticWorldConfig(seed=2, target_north_m=30, target_east_m=0, noise_sigma=0.0,
                            ground_texture="snow",
                            distractors=[DistractorConfig(kind="moving_box", north_m=8, east_m=0,
                                                          size_m=0.6, height_m=0.3,

@@ -7,9 +7,10 @@ from collections.abc import AsyncIterator
 import pytest
 from eaglemission.drivers.vehicles.dynamics import DynamicsParams
 from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 
 from eaglemission.clock import ManualClock
-from eaglemission.config import SafetyConfig, SimulationConfig
+from eaglemission.config import SafetyConfig
 from eaglemission.interfaces import Vehicle
 from eaglemission.types import FlightMode
 
@@ -48,7 +49,7 @@ class SimulatedBackend(BackendBase):
 
 def make_backend(variant: str, seed: int = 7) -> SimulatedBackend:
     clock = ManualClock()
-    simulation = SimulationConfig(seed=seed, wind_ne_mps=(3.0, -2.0) if variant == "windy" else (0.0, 0.0))
+    simulation = SyntheticWorldConfig(seed=seed, wind_ne_mps=(3.0, -2.0) if variant == "windy" else (0.0, 0.0))
     dyn = DynamicsParams(wind_gust_std_mps=1.0) if variant == "windy" else DynamicsParams()
     sim = SimulatedVehicle(SimulatedVehicle.Config(dynamics=dyn), clock=clock, simulation=simulation)
     vehicle: Vehicle = sim

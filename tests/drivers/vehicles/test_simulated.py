@@ -10,11 +10,11 @@ import pytest
 from eaglemission.drivers.vehicles.dynamics import DynamicsParams
 from eaglemission.drivers.vehicles.simulated import SimulatedVehicle, SimulatedVehicleConfig
 from eaglemission.drivers.vehicles.wait import wait_until
+from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 from pydantic import ValidationError
 
 from eaglemission import registry
 from eaglemission.clock import LoopClock, ManualClock, run_virtual
-from eaglemission.config import SimulationConfig
 from eaglemission.errors import ModeChangedExternally, TimeoutError_, VehicleError
 from eaglemission.geometry import R_to_euler, quat_to_R
 from eaglemission.types import FlightMode, Setpoint, Waypoint
@@ -245,7 +245,7 @@ async def test_mission_from_ground_climbs_first_and_loiters_at_the_end() -> None
 
 
 async def test_truth_and_estimate_differ_by_a_bounded_drift() -> None:
-    v, clock = make(simulation=SimulationConfig(seed=5, wind_ne_mps=(2.0, 1.0)))
+    v, clock = make(simulation=SyntheticWorldConfig(seed=5, wind_ne_mps=(2.0, 1.0)))
     await airborne(v, clock)
     diffs = []
     for _ in range(200):

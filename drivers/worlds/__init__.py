@@ -1,0 +1,1 @@
+"""Simulated worlds: the ground truth the fake drivers share (``world:`` in a mission file)."""

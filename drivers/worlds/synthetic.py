@@ -1,0 +1,130 @@
+"""The ``synthetic`` world: procedural ground, the target box, distractors, wind and the
+realism knobs that make the rendering cameras differ from their nominal models.
+
+Its schema lives here, with the fake drivers that read it (the synthetic cameras render it,
+the simulated vehicle takes its wind, the evaluator judges against its target); the mission
+never sees it. ``campaign`` draws random variants of it through :meth:`randomised_params`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import Field
+
+from eaglemission.config import Finite, NonNegFloat, PosFloat, StrictModel
+
+TEXTURES = ("vegetation", "soil", "snow", "grass")
+
+
+class DistractorConfig(StrictModel):
+    kind: Literal["box", "disc", "stripe", "moving_box"] = "box"
+    north_m: Finite
+    east_m: Finite
+    size_m: PosFloat = 0.5
+    height_m: NonNegFloat = 0.1
+    color_bgr: tuple[int, int, int] = (40, 40, 200)
+    velocity_ne_mps: tuple[Finite, Finite] = (0.0, 0.0)
+
+
+class SyntheticWorldConfig(StrictModel):
+    """The simulated world (ground truth). Only fake drivers and the evaluator read it."""
+
+    seed: int = 0
+    target_north_m: Finite = 20.0
+    target_east_m: Finite = 5.0
+    target_yaw_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
+    ground_texture: Literal["vegetation", "soil", "snow", "grass"] = "vegetation"
+    distractors: list[DistractorConfig] = Field(default_factory=list)
+    light_gain: Annotated[float, Field(gt=0, le=4)] = 1.0
+    noise_sigma: Annotated[float, Field(ge=0, le=50)] = 2.0
+    wind_ne_mps: tuple[Finite, Finite] = (0.0, 0.0)
+    mount_error_deg: Annotated[float, Field(ge=0, le=10)] = 0.0
+    focal_error_fraction: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+    camera_time_offset_s: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+    frame_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
+
+
+class SyntheticWorld:
+    """The ``synthetic`` world plugin: holds the validated world description (the renderer,
+    :class:`~eaglemission.drivers.cameras.world.SyntheticWorld`, is built from it by the
+    cameras on first use)."""
+
+    Config = SyntheticWorldConfig
+    description = "procedural ground with the target box, distractors and wind (simulation)"
+
+    def __init__(self, config: SyntheticWorldConfig, **_context: Any) -> None:
+        self.config = config
+
+    @property
+    def seed(self) -> int:
+        return self.config.seed
+
+    def target_ne_m(self) -> tuple[float, float]:
+        return (self.config.target_north_m, self.config.target_east_m)
+
+    @property
+    def target_yaw_deg(self) -> float:
+        return self.config.target_yaw_deg
+
+    def randomised_params(self, rng: np.random.RandomState,
+                          route_ne_m: Sequence[tuple[float, float]]) -> dict[str, Any]:
+        """A random variant of this world (pure given the RNG state): target along the route
+        (35-75% of its length, +-3 m across), heading, texture, 0-2 distractors, lighting,
+        wind (0-3 m/s, any direction), mount error 2 deg, focal error 3%, camera-to-telemetry
+        offset 0-40 ms and the world seed."""
+        route = np.array(route_ne_m, dtype=float).reshape(-1, 2)
+        seg_len = np.linalg.norm(np.diff(route, axis=0), axis=1) if len(route) > 1 \
+            else np.ones(1)
+        s = rng.uniform(0.35, 0.75) * float(seg_len.sum())
+        i = int(np.searchsorted(np.cumsum(seg_len), s)) if len(route) > 1 else 0
+        i = min(i, len(route) - 2) if len(route) > 1 else 0
+        a = route[i]
+        b = route[i + 1] if len(route) > 1 else route[i] + np.array([1.0, 0.0])
+        start = float(np.cumsum(seg_len)[i - 1]) if i > 0 else 0.0
+        u = (b - a) / max(1e-9, float(np.linalg.norm(b - a)))
+        side = np.array([-u[1], u[0]])
+        p = a + u * (s - start) + side * rng.uniform(-3.0, 3.0)
+        distractors = []
+        for _ in range(int(rng.randint(0, 3))):
+            for _try in range(20):
+                dn = a + u * rng.uniform(0.2, 1.0) * float(seg_len.sum()) \
+                    + side * rng.uniform(-6, 6)
+                if np.linalg.norm(dn - p) >= 4.0:
+                    break
+            # draw order kept as in every campaign so far (kind, size, height, colour)
+            kind = ("box", "disc", "stripe")[int(rng.randint(0, 3))]
+            size_m = float(rng.uniform(0.3, 0.8))
+            height_m = float(rng.uniform(0.0, 0.2))
+            c = rng.randint(20, 235, size=3)
+            distractors.append(DistractorConfig(
+                kind=kind, north_m=float(dn[0]), east_m=float(dn[1]), size_m=size_m,
+                height_m=height_m, color_bgr=(int(c[0]), int(c[1]), int(c[2]))))
+        wind_speed = rng.uniform(0.0, 3.0)
+        wind_dir = rng.uniform(-math.pi, math.pi)
+        varied = self.config.model_copy(update={
+            "seed": int(rng.randint(0, 2**31 - 1)),
+            "target_north_m": float(p[0]), "target_east_m": float(p[1]),
+            "target_yaw_deg": float(rng.uniform(-180.0, 180.0)),
+            "ground_texture": TEXTURES[int(rng.randint(0, len(TEXTURES)))],
+            "distractors": distractors,
+            "light_gain": float(rng.uniform(0.7, 1.3)),
+            "wind_ne_mps": (float(wind_speed * math.cos(wind_dir)),
+                            float(wind_speed * math.sin(wind_dir))),
+            "mount_error_deg": 2.0,
+            "focal_error_fraction": 0.03,
+            "camera_time_offset_s": float(rng.uniform(0.0, 0.040)),
+        })
+        return varied.model_dump()
+
+
+def world_config(mission: Any) -> SyntheticWorldConfig | None:
+    """The synthetic world of a mission file (``world.type: synthetic``), validated; None when
+    the file has no world or another one."""
+    section = getattr(mission, "world", None)
+    if section is None or section.type != "synthetic":
+        return None
+    return SyntheticWorldConfig.model_validate(section.params)
