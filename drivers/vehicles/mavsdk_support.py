@@ -22,7 +22,8 @@ from eaglemission.errors import PluginError, VehicleError
 from eaglemission.geometry import ned_to_geodetic, wrap_deg
 from eaglemission.types import GeoPoint, Setpoint, Waypoint
 
-MAVSDK_REMEDY = 'the MAVSDK driver needs mavsdk 4.1: pip install "mavsdk>=4.1,<4.2"'
+MAVSDK_REMEDY = ('the mavsdk vehicle needs the [mavsdk] extra: pip install "eaglemission[mavsdk]" '
+                 '(mavsdk 4.1)')
 
 REMEDIES = {
     "TIMEOUT": "no answer from the autopilot: is the link up (telemetry flowing)?",
