@@ -33,9 +33,9 @@ from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Literal
 
 import cv2
+import eaglemission.detectors.dtdmi.equations as eq
 import numpy as np
 from eaglemission.detectors.base import DetectorConfig, SaliencyDetector, validate_image
-from eaglemission.detectors.dtdmi import equations as eq
 from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
 from eaglemission.detectors.dtdmi.static import NBINS, ClusterStatic, StaticParams, quantize_bgr
 from eaglemission.detectors.regions import RegionsConfig, find_regions
@@ -306,7 +306,7 @@ class DTDMIEngine:
         self.r = resolve(cfg)
         self.numba = cfg.backend == "numba"
         if self.numba:
-            from eaglemission.detectors.dtdmi import kernels
+            import eaglemission.detectors.dtdmi.kernels as kernels
 
             self._k = kernels
         self.static = ClusterStatic(StaticParams(

@@ -17,9 +17,9 @@ import logging
 from dataclasses import dataclass
 
 import cv2
+import eaglemission.detectors.dtdmi.egomotion as egomotion
+import eaglemission.detectors.dtdmi.equations as eq
 import numpy as np
-from eaglemission.detectors.dtdmi import egomotion
-from eaglemission.detectors.dtdmi import equations as eq
 from eaglemission.detectors.dtdmi.midbrain_step import midbrain_step_numpy
 from numpy.typing import NDArray
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+import eaglemission.detectors.dtdmi.equations as eq
 import numpy as np
-from eaglemission.detectors.dtdmi import equations as eq
 from numpy.typing import NDArray
 
 BITS = 4
@@ -124,7 +124,7 @@ class ClusterStatic:
         self._lut = np.zeros(NBINS, np.intp)
         self._k = None
         if params.backend == "numba":
-            from eaglemission.detectors.dtdmi import kernels
+            import eaglemission.detectors.dtdmi.kernels as kernels
 
             self._k = kernels
         self.reset()
