@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 from eaglemission.detectors.base import validate_appearance
-from eaglemission.detectors.dtdmi.equations import pool_colour_bins
+from eaglemission.detectors.dtdmi.equations_static import pool_colour_bins
 from eaglemission.detectors.dtdmi.static import NBINS, quantize_bgr
 from numpy.typing import NDArray
 

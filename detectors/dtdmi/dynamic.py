@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import cv2
 import eaglemission.detectors.dtdmi.egomotion as egomotion
-import eaglemission.detectors.dtdmi.equations as eq
+import eaglemission.detectors.dtdmi.equations_dynamic as eq
 import numpy as np
 from eaglemission.detectors.dtdmi.midbrain_step import midbrain_step_numpy
 from numpy.typing import NDArray

@@ -19,7 +19,7 @@ References
 
 from __future__ import annotations
 
-import eaglemission.detectors.dtdmi.equations as eq
+import eaglemission.detectors.dtdmi.equations_dynamic as eq
 import numpy as np
 from numpy.typing import NDArray
 

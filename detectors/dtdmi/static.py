@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-import eaglemission.detectors.dtdmi.equations as eq
+import eaglemission.detectors.dtdmi.equations_static as eq
 import numpy as np
 from numpy.typing import NDArray
 
