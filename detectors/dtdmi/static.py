@@ -160,10 +160,6 @@ class ClusterStatic:
         whist = np.bincount(sub, weights=wgrid, minlength=NBINS)
         return hist, whist
 
-    def bin_saliency(self, idx: NDArray[np.uint16], timestamp_ns: int) -> NDArray[np.float32]:
-        """S_s of each of the 4096 colour bins for this frame (Eqs. (2)-(6))."""
-        return self.bin_saliency_from_hist(*self.histograms(idx), timestamp_ns)
-
     def _cluster_bins(self, hist: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64], int]:
         """Warm-started weighted k-means of the occupied colour bins (the clustering of
         Fu et al.); returns the occupied bins, their cluster labels, each cluster's pixel count and K. A change of K
