@@ -18,6 +18,7 @@ from eaglemission.detectors.boxes import (
     parse_boxes,
 )
 from eaglemission.detectors.cli_params import UsageError
+from numpy.typing import NDArray
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 T0_NS = 1_000_000_000  # first frame's timestamp (the virtual clock also starts at 1 s)
@@ -142,11 +143,11 @@ def find_sequences(data: Path, only: Sequence[str] | None = None, *,
     return out
 
 
-def read_image(path: Path) -> np.ndarray:
+def read_image(path: Path) -> NDArray[np.uint8]:
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise UsageError(f"cannot read image {str(path)!r}: unreadable or not an image")
-    return img
+    return np.asarray(img, dtype=np.uint8)  # IMREAD_COLOR: always 8-bit BGR
 
 
 def read_gt(path: Path, shape: tuple[int, int]) -> np.ndarray:
@@ -168,11 +169,12 @@ def first_frame_crop(seq: BenchSequence) -> tuple[int, np.ndarray]:
     non-empty mask's bounding box): the example image of ``bench --target-image first-frame``."""
     for i, fpath in enumerate(seq.frames):
         box = None
+        gpath = seq.gts[i]
         if seq.boxes is not None:
             box = seq.boxes[i]
-        elif seq.gts[i] is not None:
+        elif gpath is not None:
             image = read_image(fpath)
-            box = box_from_mask(read_gt(seq.gts[i], image.shape[:2]))
+            box = box_from_mask(read_gt(gpath, image.shape[:2]))
         if box is not None and box_valid(box):
             try:
                 return i, crop_box(read_image(fpath), box)

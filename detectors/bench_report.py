@@ -98,7 +98,7 @@ def plot_curves(runs: Sequence[DetectorRun], out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    paths = []
+    paths: list[Path] = []
     runs = [r for r in runs if r.has_curves]
     if not runs:
         return paths

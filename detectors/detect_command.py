@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -25,6 +25,7 @@ from eaglemission.detectors.bench_data import (
 )
 from eaglemission.detectors.cli_params import UsageError, deep_merge, parse_kv
 from eaglemission.detectors.regions import to_uint8
+from numpy.typing import NDArray
 
 from eaglemission import registry
 from eaglemission.commands import Command
@@ -65,7 +66,8 @@ def iter_input(path: Path, fps: float, max_frames: int | None) -> Iterator[tuple
             ok, img = cap.read()
             if not ok:
                 break
-            yield f"{i:06d}", Frame(img, frame_time_ns(i, rate), "input", i)
+            frame = Frame(cast(NDArray[np.uint8], img), frame_time_ns(i, rate), "input", i)
+            yield f"{i:06d}", frame
             i += 1
             n += 1
         if i == 0:

@@ -130,6 +130,7 @@ class DTDMIEngine:
                 self._pool_f = f
                 self._pooled = np.zeros((h // f, w // f), np.float32)
         self._shape = shape
+        self._hw = shape  # the allocated resolution (self._shape: None forces a reallocation)
 
     # -- parts ----------------------------------------------------------------------------------
     def _static_lut(self, work: np.ndarray, timestamp_ns: int) -> np.ndarray:
@@ -140,10 +141,10 @@ class DTDMIEngine:
             else:
                 self._idx[...] = quantize_bgr(work)
                 hist, mom = self.static.moments(self._idx)
-            lut = self.static.bin_saliency_field(hist, mom, self._shape)
+            lut = self.static.bin_saliency_field(hist, mom, self._hw)
         else:
             if self.numba:
-                wgrid = self.static.weight_grid(self._shape)
+                wgrid = self.static.weight_grid(self._hw)
                 self._k.sampled_hist(work, self.static.p.sample_step_px, wgrid, self._hist,
                                      self._whist)
                 hist, whist = self._hist, self._whist
@@ -183,7 +184,7 @@ class DTDMIEngine:
         full = maps[0] if self._has_full else None
         coarse = maps[1:] if self._has_full else maps
         coarse_tops = tops[1:] if self._has_full else tops
-        h, w = self._shape
+        h, w = self._hw
         for k, m in enumerate(coarse):
             f = self._compress(coarse_tops[k])
             if f != 1.0:
@@ -213,16 +214,16 @@ class DTDMIEngine:
         n = len(maps)
         if self.numba:
             # self._pool_f > 1: S only as the block means the smoothing starts from
-            lut_k = lut if use_static else np.zeros(1, np.float32)
+            lut_k = lut if use_static and lut is not None else np.zeros(1, np.float32)
             pooled = self._pooled if self._pool_f else self._dummy
-            base, up = self._up.plan(base, self._shape)
+            base, up = self._up.plan(base, self._hw)
             top = float(self._k.combine(
                 full if full is not None else self._dummy, np.float32(inv0), float(gamma),
                 full is not None, base, up, n, lut_k, work, use_static, self._centre_row,
                 self._centre_col, use_centre, self._pool_f, pooled, self._out))
             if self._pool_f:
                 return -1.0  # the maximum is taken after the smoothing
-            return self._boost(work, lut, top) if boost else top
+            return self._boost(work, lut, top) if boost and lut is not None else top
         acc = self._out
         acc[...] = 0.0
         if full is not None:
@@ -231,11 +232,11 @@ class DTDMIEngine:
         if coarse:
             acc += self._ups[0]
         acc *= np.float32(1.0 / n)  # Eq. (14)
-        if use_static:
+        if use_static and lut is not None:
             acc *= lut[self._idx]  # Eq. (15)
         if use_centre:
             acc *= self._centre
-        if boost:
+        if boost and lut is not None:
             acc[...] = fusion.boosted_saliency(lut[self._idx], acc, self.r.dynamic_gain)
             if self.r.centre_sigma_frac > 0 and centre:
                 acc *= self._centre
@@ -277,18 +278,19 @@ class DTDMIEngine:
             base = sc.sm
         sc, grey_s, gain = deferred[0]
         grey_scale = 1.0 / 255.0 if grey_s.dtype == np.uint8 else 1.0
-        b, up = self._up.plan(base, self._shape)
+        b, up = self._up.plan(base, self._hw)
         pooled = self._pooled if self._pool_f else self._dummy
         # boost in the same pass unless a centre weight follows it (then a pass of its own)
         boost_in = boost and self.r.centre_sigma_frac == 0
         top = float(self._k.midbrain_combine(
             grey_s, sc.g_delayed, sc.g_prev, np.float32(gain), radius, floor, sc.o, gamma, b, up,
-            len(deferred), lut if (use_static or boost_in) else no_lut, work, use_static,
+            len(deferred), lut if (use_static or boost_in) and lut is not None else no_lut, work,
+            use_static,
             self._centre_row, self._centre_col, use_centre, self._pool_f, pooled, self._out,
             float(self.r.dynamic_gain) if boost_in else -1.0, grey_scale))
         if self._pool_f:
             return -1.0  # the maximum is taken after the smoothing
-        return self._boost(work, lut, top) if boost and not boost_in else top
+        return self._boost(work, lut, top) if boost and not boost_in and lut is not None else top
 
     def _general_saliency(self, work: np.ndarray, timestamp_ns: int) -> np.ndarray:
         """S of the general path into ``self._out`` (no per-pixel fusion kernel): S_s as
@@ -307,7 +309,7 @@ class DTDMIEngine:
                 self._paint(work, lut, out)
                 s = out.copy() if r.colour_weight == 1.0 else out * np.float32(r.colour_weight)
             if r.block_weight > 0:
-                diag = float(np.hypot(*self._shape))
+                diag = float(np.hypot(*self._hw))
                 radius = round(r.block_radius_frac * diag)
                 if self.numba:  # the OpenCV path (numba is the fast backend's name)
                     blk = block_contrast_fast(work, r.block_luminance_weight, radius,
@@ -332,7 +334,7 @@ class DTDMIEngine:
         if blk is not None:  # block_fusion "add": after Eq. (15)
             s = blk if s is None else np.add(s, blk, out=s)
         if s is None:
-            s = np.zeros(self._shape, np.float32)
+            s = np.zeros(self._hw, np.float32)
         if self.appearance is not None:
             if hist is None:
                 idx = quantize_bgr(work[::2, ::2])

@@ -50,4 +50,5 @@ def fused_saliency_max(static: FloatArray, dynamic: FloatArray, gain: float) -> 
     Either cue alone can nominate a region: a static object by its contrast, a moving one by the
     midbrain map, with ``gain`` putting S_M on S_s's scale. The printed product needs both.
     """
-    return np.maximum(np.asarray(static), gain * np.asarray(dynamic))
+    fused: FloatArray = np.maximum(np.asarray(static), gain * np.asarray(dynamic))
+    return fused

@@ -22,7 +22,7 @@ References
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.floating]
 
@@ -84,11 +84,12 @@ def contrast_cue(centres: FloatArray, counts: FloatArray) -> FloatArray:
     if total <= 0:
         return np.zeros(len(counts))
     dist = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)  # zero diagonal
-    return dist @ (counts / total)
+    cue: FloatArray = dist @ (counts / total)
+    return cue
 
 
 def inverse_square_distance(
-    rows: FloatArray, cols: FloatArray, centre_rc: tuple[float, float], min_d2_px2: float = 0.25
+    rows: ArrayLike, cols: ArrayLike, centre_rc: tuple[float, float], min_d2_px2: float = 0.25
 ) -> FloatArray:
     """Spatial weight ``1 / ||x_p - o||^2`` of a pixel, Eq. (3) of [1].
 
@@ -98,7 +99,7 @@ def inverse_square_distance(
 
     Parameters
     ----------
-    rows, cols : ndarray, broadcastable
+    rows, cols : array_like, broadcastable
         Pixel coordinates (row, column).
     centre_rc : (float, float)
         Image centre ``o`` as (row, column), ``((H - 1) / 2, (W - 1) / 2)``.
@@ -119,7 +120,7 @@ def inverse_square_distance(
 
 
 def gaussian_centre_weight(
-    rows: FloatArray, cols: FloatArray, shape_hw: tuple[int, int], sigma_frac: float = 0.25
+    rows: ArrayLike, cols: ArrayLike, shape_hw: tuple[int, int], sigma_frac: float = 0.25
 ) -> FloatArray:
     """Gaussian centre weight, the replacement for Eq. (3) of [1] used by Fu et al. [2].
 
@@ -128,7 +129,8 @@ def gaussian_centre_weight(
 
     Parameters
     ----------
-    rows, cols : ndarray, broadcastable
+    rows, cols : array_like, broadcastable
+        Pixel coordinates (row, column).
     shape_hw : (int, int)
         Image height and width.
     sigma_frac : float
@@ -275,7 +277,8 @@ def lms_to_lalphabeta(lms: FloatArray, floor: float = 1e-4) -> FloatArray:
     .. [4] E. Reinhard, M. Ashikhmin, B. Gooch, P. Shirley, "Color Transfer between Images",
        IEEE CG&A 21(5), 2001. DOI: 10.1109/38.946629.
     """
-    return np.log10(np.maximum(np.asarray(lms, np.float64), floor)) @ LOG_LMS_TO_LAB.T
+    lab: FloatArray = np.log10(np.maximum(np.asarray(lms, np.float64), floor)) @ LOG_LMS_TO_LAB.T
+    return lab
 
 
 def bin_contrast_cue(features: FloatArray, centres: FloatArray, counts: FloatArray) -> FloatArray:
@@ -302,7 +305,8 @@ def bin_contrast_cue(features: FloatArray, centres: FloatArray, counts: FloatArr
     if total <= 0:
         return np.zeros(len(features))
     d = np.linalg.norm(np.asarray(features)[:, None, :] - np.asarray(centres)[None], axis=2)
-    return d @ (counts / total)
+    cue: FloatArray = d @ (counts / total)
+    return cue
 
 
 def distribution_cue(moments: FloatArray, counts: FloatArray, diag_px: float,
@@ -339,7 +343,7 @@ def distribution_cue(moments: FloatArray, counts: FloatArray, diag_px: float,
 
 
 
-def pool_colour_bins(values: FloatArray, bits: int = 4) -> FloatArray:
+def pool_colour_bins(values: ArrayLike, bits: int = 4) -> NDArray[np.float64]:
     """Sum of each colour bin and its 26 neighbours in the (2^bits)^3 histogram grid (field).
 
     The distribution cue pools a bin's pixels with those of adjacent colours (a box version of
@@ -405,7 +409,8 @@ def block_contrast_cue(features: FloatArray, radius_px: int, surround: float) ->
     big = max(r + 1, int(round(surround * r)))
     centre = cv2.blur(f, (2 * r + 1, 2 * r + 1), borderType=cv2.BORDER_REFLECT)
     around = cv2.blur(f, (2 * big + 1, 2 * big + 1), borderType=cv2.BORDER_REFLECT)
-    diff = centre - around
+    diff: NDArray[np.float32] = centre - around
     if diff.ndim == 2:
         return np.abs(diff)
-    return np.sqrt(np.einsum("hwc,hwc->hw", diff, diff, dtype=np.float32))
+    d2: NDArray[np.float32] = np.einsum("hwc,hwc->hw", diff, diff, dtype=np.float32)
+    return np.sqrt(d2)
