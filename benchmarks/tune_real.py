@@ -52,18 +52,18 @@ from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.detectors.boxes import (  # noqa: E402
-    BoxScores,
-    box_from_mask,
-    score_frame,
-    spread,
-)
-from eaglemission.detectors.cli import (  # noqa: E402
+from eaglemission.detectors.bench_data import (  # noqa: E402
     BenchSequence,
     find_sequences,
     first_frame_crop,
     frame_time_ns,
     read_gt,
+)
+from eaglemission.detectors.boxes import (  # noqa: E402
+    BoxScores,
+    box_from_mask,
+    score_frame,
+    spread,
 )
 from eaglemission.detectors.dtdmi.detector import appearance_rerank  # noqa: E402
 from eaglemission.detectors.metrics import CurveAccumulator, normalize_map  # noqa: E402
@@ -251,7 +251,7 @@ def resolved_config(name: str, params: dict[str, Any]) -> dict[str, Any]:
     """The validated config (with a DTDMI preset's resolved values): what the cache keys on."""
     from dataclasses import asdict
 
-    from eaglemission.detectors.dtdmi.detector import DTDMIConfig, resolve
+    from eaglemission.detectors.dtdmi.config import DTDMIConfig, resolve
 
     cfg = registry.validate_params("detectors", name, params, path="tune")
     out = cfg.model_dump(mode="json")

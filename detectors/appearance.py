@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 from eaglemission.detectors.base import validate_appearance
-from eaglemission.detectors.dtdmi.equations import pool_colour_bins
+from eaglemission.detectors.dtdmi.equations_static import pool_colour_bins
 from eaglemission.detectors.dtdmi.static import NBINS, quantize_bgr
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from eaglemission.errors import InputError
 
@@ -84,7 +84,7 @@ def target_histogram(image: NDArray[np.uint8], *, pool: bool = True,
     h, w = image.shape[:2]
     idx = quantize_bgr(image).ravel()
     k = kernel_weights(h, w).ravel()
-    q = np.bincount(idx, weights=k, minlength=NBINS)
+    q = np.asarray(np.bincount(idx, weights=k, minlength=NBINS), np.float64)
     if border_fraction > 0 and min(h, w) >= 3:
         border = border_mask(h, w, border_fraction).ravel()
         bg = np.bincount(idx[border], minlength=NBINS).astype(np.float64)
@@ -105,7 +105,7 @@ def target_histogram(image: NDArray[np.uint8], *, pool: bool = True,
     return q / total if total > 0 else q
 
 
-def frame_histogram(hist: NDArray[np.floating], *, pool: bool = True) -> NDArray[np.float64]:
+def frame_histogram(hist: ArrayLike, *, pool: bool = True) -> NDArray[np.float64]:
     """A frame's 4096-bin colour counts (e.g. the static cue's sampled histogram), pooled like
     :func:`target_histogram` and normalised to sum 1."""
     p = np.asarray(hist, np.float64)
@@ -136,7 +136,9 @@ def appearance_posterior(q: NDArray[np.floating], p: NDArray[np.floating],
         raise ValueError(f"prior: must be > 0, got {prior}")
     q = np.asarray(q, np.float64)
     den = q + np.asarray(p, np.float64) / prior
-    return np.divide(q, den, out=np.zeros_like(q), where=den > 0).astype(np.float32)
+    a = np.divide(q, den, out=np.zeros_like(q), where=den > 0)
+    posterior: NDArray[np.float32] = a.astype(np.float32)
+    return posterior
 
 
 @dataclass(frozen=True)
@@ -155,19 +157,18 @@ class AppearanceModel:
             raise InputError("appearance: no image given")
         return cls(target_histogram(img, pool=pool, border_fraction=border_fraction), prior, pool)
 
-    def lut(self, frame_hist: NDArray[np.floating]) -> NDArray[np.float32]:
+    def lut(self, frame_hist: ArrayLike) -> NDArray[np.float32]:
         """(4096,) float32 posterior per colour bin for a frame with these bin counts."""
         return appearance_posterior(self.q, frame_histogram(frame_hist, pool=self.pool),
                                     self.prior)
 
-    def back_project(self, image: NDArray[np.uint8], frame_hist: NDArray[np.floating] | None = None
+    def back_project(self, image: NDArray[np.uint8], frame_hist: ArrayLike | None = None
                      ) -> NDArray[np.float32]:
         """The (H, W) posterior map of a BGR frame (plain numpy; the detector uses :meth:`lut`
         with its own look-up)."""
         idx = quantize_bgr(image)
-        if frame_hist is None:
-            frame_hist = np.bincount(idx.ravel(), minlength=NBINS)
-        return self.lut(frame_hist)[idx]
+        counts = np.bincount(idx.ravel(), minlength=NBINS) if frame_hist is None else frame_hist
+        return self.lut(counts)[idx]
 
 
 def region_histogram(image: NDArray[np.uint8], corners_px: NDArray[np.floating], *,

@@ -18,6 +18,7 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 from eaglemission.detectors.regions import RegionsConfig, find_regions
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.errors import InputError
@@ -90,25 +91,27 @@ def shrink(image: np.ndarray, factor: int) -> np.ndarray:
 
 def to_frame_size(sal: np.ndarray, shape: tuple[int, int]) -> Saliency:
     """A map resized (bilinear) to ``shape`` = (H, W), as float32 clipped to [0, 1]."""
-    sal = np.asarray(sal, dtype=np.float32)
-    if sal.shape[:2] != shape:
-        sal = cv2.resize(sal, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
-    return np.clip(sal, 0.0, 1.0, out=sal if sal.flags.writeable else None)
+    out: NDArray[np.float32] = np.asarray(sal, dtype=np.float32)
+    if out.shape[:2] != shape:
+        out = np.asarray(cv2.resize(out, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR),
+                         dtype=np.float32)
+    return np.clip(out, 0.0, 1.0, out=out if out.flags.writeable else None)
 
 
 def validate_image(image: Any) -> np.ndarray:
     """Accept (H, W, 3) BGR or (H, W) grey uint8 with H, W >= 8; grey becomes 3-channel."""
     if not isinstance(image, np.ndarray):
         raise InputError(f"image: must be a numpy array, got {type(image).__name__}")
-    if image.dtype != np.uint8:
-        raise InputError(f"image: must be uint8 (8-bit BGR or grey), got {image.dtype}")
-    if image.ndim == 2:
-        image = np.repeat(image[:, :, None], 3, axis=2)
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise InputError(f"image: must be (H, W, 3) BGR or (H, W) grey, got shape {image.shape}")
-    if image.shape[0] < 8 or image.shape[1] < 8:
-        raise InputError(f"image: must be at least 8x8 pixels, got {image.shape[1]}x{image.shape[0]}")
-    return image
+    img: np.ndarray = image
+    if img.dtype != np.uint8:
+        raise InputError(f"image: must be uint8 (8-bit BGR or grey), got {img.dtype}")
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"image: must be (H, W, 3) BGR or (H, W) grey, got shape {img.shape}")
+    if img.shape[0] < 8 or img.shape[1] < 8:
+        raise InputError(f"image: must be at least 8x8 pixels, got {img.shape[1]}x{img.shape[0]}")
+    return img
 
 
 def validate_appearance(image: Any) -> np.ndarray | None:

@@ -62,7 +62,8 @@ def colour_mask_numpy(image_bgr: np.ndarray, step: int, target_chroma: np.ndarra
     dist = np.abs(b / den - t[0])
     dist += np.abs(g / den - t[1])
     dist += np.abs(r / den - t[2])
-    return ((dist <= tolerance) & (total >= min_brightness)).astype(np.uint8)
+    mask: np.ndarray = ((dist <= tolerance) & (total >= min_brightness)).astype(np.uint8)
+    return mask
 
 
 # the compiled colour mask (loaded on first use; None: colour_mask_numpy)

@@ -50,7 +50,8 @@ def normalize_map(sal: NDArray[np.floating]) -> NDArray[np.float32]:
 def quantize(sal01: NDArray[np.floating]) -> NDArray[np.uint8]:
     """[0, 1] float map -> 0..255 (round to nearest, saturate)."""
     s = np.asarray(sal01, np.float32)  # float32 first, so float64 inputs round the same way
-    return np.clip(np.rint(s * np.float32(255.0)), 0, 255).astype(np.uint8)
+    q: NDArray[np.uint8] = np.clip(np.rint(s * np.float32(255.0)), 0, 255).astype(np.uint8)
+    return q
 
 
 def pr_roc_curves(sal8: NDArray[np.uint8], gt: NDArray[np.bool_]) -> tuple[Curve, Curve, Curve]:

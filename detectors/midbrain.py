@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
-from eaglemission.detectors.dtdmi.detector import DTDMIConfig, DTDMIDetector
+from eaglemission.detectors.dtdmi.config import DTDMIConfig
+from eaglemission.detectors.dtdmi.detector import DTDMIDetector
 
 
 class MidbrainDynamicConfig(DTDMIConfig):

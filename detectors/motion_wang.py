@@ -52,7 +52,8 @@ class MotionWangDetector(SaliencyDetector):
         grey = cv2.cvtColor(shrink(image, cfg.downscale), cv2.COLOR_BGR2GRAY)
         size = (grey.shape[1], grey.shape[0])
         if self._model is None or self._model_size != size:
-            self._model = cv2.saliency.MotionSaliencyBinWangApr2014_create()
+            contrib: Any = cv2  # cv2.saliency (opencv-contrib) is missing from OpenCV's stubs
+            self._model = contrib.saliency.MotionSaliencyBinWangApr2014_create()
             self._model.setImagesize(*size)
             if not self._model.init():
                 raise RuntimeError("MotionSaliencyBinWangApr2014.init() failed")

@@ -162,8 +162,11 @@ def mss_distance(lab8: np.ndarray, blurred8: np.ndarray, *, full_scale_lab: floa
             ii = ii.astype(np.int64)
         inv_y = 1.0 / symmetric_surround_counts(h).astype(np.float64)
         inv_x = 1.0 / symmetric_surround_counts(w).astype(np.float64)
-        return kernel(ii.reshape(h + 1, w + 1, 3), np.ascontiguousarray(blurred8), inv_y, inv_x,
-                      np.ascontiguousarray(_LAB8_TO_LAB[:, :3], dtype=np.float64), scale, cap)
+        dist: np.ndarray = kernel(ii.reshape(h + 1, w + 1, 3), np.ascontiguousarray(blurred8),
+                                  inv_y, inv_x,
+                                  np.ascontiguousarray(_LAB8_TO_LAB[:, :3], dtype=np.float64),
+                                  scale, cap)
+        return dist
     # I_mu - I_f in CIE units (the 8-bit offsets cancel; only the L scale remains)
     diff = symmetric_surround_mean(lab8.astype(np.float32)) - blurred8.astype(np.float32)
     diff = cv2.transform(diff, _LAB8_TO_LAB[:, :3])

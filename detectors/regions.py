@@ -23,11 +23,12 @@ Conventions (docs/detectors.md, "Regions"):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Literal
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.types import Detection, Saliency, TargetPrior
@@ -65,7 +66,7 @@ class RegionsConfig(BaseModel):
 _TIE_PX = 1e-6
 
 
-def order_corners(corners: NDArray[np.float64]) -> NDArray[np.float64]:
+def order_corners(corners: ArrayLike) -> NDArray[np.float64]:
     """Order 4 corners clockwise on screen starting from the top-left one.
 
     Parameters
@@ -101,10 +102,14 @@ def to_uint8(saliency: Saliency, normalize: str = "none") -> NDArray[np.uint8]:
         lo, hi = cv2.minMaxLoc(np.nan_to_num(s, nan=0.0, posinf=0.0, neginf=0.0))[:2]
         if not hi > lo:
             return np.zeros(s.shape, np.uint8)
-        return cv2.convertScaleAbs(cv2.max(s - np.float32(lo), 0.0), alpha=255.0 / (hi - lo))
+        return np.asarray(cv2.convertScaleAbs(
+            cv2.max(s - np.float32(lo), 0.0),  # type: ignore[call-overload]  # stubs lack max(Mat, scalar)
+            alpha=255.0 / (hi - lo)), dtype=np.uint8)
     elif normalize != "none":
         raise ValueError(f"normalize: must be 'none' or 'minmax', got {normalize!r}")
-    return cv2.convertScaleAbs(cv2.max(s, 0.0), alpha=255.0)
+    return np.asarray(cv2.convertScaleAbs(
+        cv2.max(s, 0.0),  # type: ignore[call-overload]  # stubs lack max(Mat, scalar)
+        alpha=255.0), dtype=np.uint8)
 
 
 def adaptive_threshold(peak8: float, floor: float, fraction: float) -> float:
@@ -122,7 +127,7 @@ def binarize(sal8: NDArray[np.uint8], cfg: RegionsConfig) -> tuple[NDArray[np.ui
     """Binary mask (0/255, ``sal8 > T``) and the threshold ``T`` used, on 0..255."""
     if cfg.threshold == "otsu":
         t, mask = cv2.threshold(sal8, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-        return mask, float(t)
+        return np.asarray(mask, dtype=np.uint8), float(t)
     if cfg.threshold == "mean":
         t = min(254.0, max(1.0, cfg.mean_factor * float(cv2.mean(sal8)[0])))
     elif cfg.threshold == "adaptive":
@@ -131,7 +136,7 @@ def binarize(sal8: NDArray[np.uint8], cfg: RegionsConfig) -> tuple[NDArray[np.ui
     else:
         t = float(cfg.fixed_threshold)
     _, mask = cv2.threshold(sal8, t, 255, cv2.THRESH_BINARY)
-    return mask, t
+    return np.asarray(mask, dtype=np.uint8), t
 
 
 def prior_accepts(area_px: float, long_px: float, short_px: float,
@@ -197,7 +202,7 @@ def find_regions(
     grow = 1.0 if cfg.mbr_pixel_edges else 0.0
     sal = np.asarray(saliency, dtype=np.float32)
     image_area = float(sal.shape[0] * sal.shape[1])
-    candidates: list[tuple[float, tuple[tuple[float, float], tuple[float, float], float]]] = []
+    candidates: list[tuple[float, tuple[Sequence[float], tuple[float, float], float]]] = []
     for cnt in contours:
         x, y, bw, bh = cv2.boundingRect(cnt)
         # boundingRect counts pixels, so bw * bh bounds every area below from above.

@@ -39,7 +39,8 @@ class SpectralResidualDetector(SaliencyDetector):
 
     def __init__(self, config: SpectralResidualConfig | None = None, **context: Any) -> None:
         super().__init__(config, **context)
-        self._sr = cv2.saliency.StaticSaliencySpectralResidual_create()
+        contrib: Any = cv2  # cv2.saliency (opencv-contrib) is missing from OpenCV's stubs
+        self._sr = contrib.saliency.StaticSaliencySpectralResidual_create()
         self._sr.setImageWidth(self.config.thumbnail_px)
         self._sr.setImageHeight(self.config.thumbnail_px)
 

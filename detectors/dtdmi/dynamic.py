@@ -15,16 +15,19 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import cast
 
 import cv2
+import eaglemission.detectors.dtdmi.egomotion as egomotion
+import eaglemission.detectors.dtdmi.equations_dynamic as eq
 import numpy as np
-from eaglemission.detectors.dtdmi import egomotion
-from eaglemission.detectors.dtdmi import equations as eq
 from eaglemission.detectors.dtdmi.midbrain_step import midbrain_step_numpy
 from numpy.typing import NDArray
 
 log = logging.getLogger(__name__)
 F32 = NDArray[np.float32]
+#: float32 grey in 0..1, or (deferred steps only) the 8-bit grey image
+Grey = NDArray[np.float32] | NDArray[np.uint8]
 
 
 @dataclass(frozen=True)
@@ -83,7 +86,8 @@ class MidbrainDynamic:
         h, w = grey.shape
         sw = min(w, self.p.ego_motion_width_px)
         s = sw / w
-        small = cv2.resize(grey, (sw, max(8, int(round(h * s)))), interpolation=cv2.INTER_AREA)
+        small = np.asarray(cv2.resize(grey, (sw, max(8, int(round(h * s)))),
+                                      interpolation=cv2.INTER_AREA), np.float32)
         hm = np.eye(3)
         if self._small_prev is not None:
             hm = egomotion.estimate_motion(self.p.ego_motion, self._small_prev, small, s)
@@ -97,7 +101,7 @@ class MidbrainDynamic:
                 egomotion.warp_state(plane, hs, sc.tmp)
                 plane[...] = sc.tmp
 
-    def step(self, grey: F32, timestamp_ns: int, *, defer: bool = False,
+    def step(self, grey: Grey, timestamp_ns: int, *, defer: bool = False,
              given: dict[int, F32] | None = None) -> list[F32]:
         """Advance every scale by one frame; the per-scale Eq. (13) maps (``self.tops``: maxima).
 
@@ -109,7 +113,7 @@ class MidbrainDynamic:
         has (with ``defer``, ``grey`` itself may then be the 8-bit image: the caller's kernel
         reads it as such); no ego-motion alignment with it.
         """
-        self.deferred: list[tuple[_Scale, F32, float]] = []
+        self.deferred: list[tuple[_Scale, Grey, float]] = []
         shape = (grey.shape[0], grey.shape[1])
         if shape != self._shape:
             self._allocate(shape)
@@ -120,13 +124,14 @@ class MidbrainDynamic:
         dt_s = (timestamp_ns - self._t_prev_ns) * 1e-9 if self._t_prev_ns is not None else None
         self._t_prev_ns = timestamp_ns
         if self.p.ego_motion != "none":
-            self._ego_motion(grey)
+            self._ego_motion(cast(F32, grey))  # float grey: 8-bit frames come without ego-motion
         # First frame: G_d(0) = 0 and no previous response, so the update is a no-op (gain 0).
         gain = 0.0 if dt_s is None else 1.0 / eq.tau_steps(dt_s, self.p.tau_s)
         out = []
         self.tops: list[float] = []
-        prev: F32 | None = None
+        prev: Grey | None = None
         for k, sc in enumerate(self._scales):
+            g_s: Grey
             if given is not None and k in given:
                 g_s = given[k]
             elif sc.shape == shape:
@@ -141,7 +146,7 @@ class MidbrainDynamic:
                 if not use_prev and grey.dtype != np.float32:
                     raise ValueError("dtdmi: an 8-bit grey frame needs every coarse scale given "
                                      "or exactly half the one before (internal error)")
-                src = prev if use_prev else grey
+                src = prev if use_prev and prev is not None else grey
                 cv2.resize(src, (sc.shape[1], sc.shape[0]), dst=sc.grey,
                            interpolation=cv2.INTER_AREA)
                 g_s = sc.grey
@@ -151,12 +156,13 @@ class MidbrainDynamic:
                 self.tops.append(float("nan"))
                 out.append(sc.sm)
                 continue
+            g32 = cast(F32, g_s)  # computed here: the float grey (8-bit frames are deferred)
             if self._fused is not None:
-                top = self._fused(g_s, sc.g_delayed, sc.g_prev, gain, self.p.tensor_radius_px,
-                            sc.o, sc.sm, self.p.floor)
+                top = self._fused(g32, sc.g_delayed, sc.g_prev, gain, self.p.tensor_radius_px,
+                                  sc.o, sc.sm, self.p.floor)
             else:
                 tau = np.inf if gain == 0.0 else 1.0 / gain
-                sm, gd, gp = midbrain_step_numpy(g_s, sc.g_delayed, sc.g_prev, tau,
+                sm, gd, gp = midbrain_step_numpy(g32, sc.g_delayed, sc.g_prev, tau,
                                                  self.p.tensor_radius_px, self.p.floor)
                 sc.sm[...] = sm
                 sc.g_delayed[...] = gd

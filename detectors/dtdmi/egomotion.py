@@ -51,7 +51,8 @@ _HANN: dict[tuple[int, int], NDArray[np.float32]] = {}
 def _hanning(shape: tuple[int, int]) -> NDArray[np.float32]:
     key = (int(shape[0]), int(shape[1]))
     if key not in _HANN:
-        _HANN[key] = cv2.createHanningWindow((key[1], key[0]), cv2.CV_32F)
+        _HANN[key] = np.asarray(cv2.createHanningWindow((key[1], key[0]), cv2.CV_32F),
+                                dtype=np.float32)
     return _HANN[key]
 
 
@@ -66,7 +67,8 @@ def homography_motion(prev: NDArray[np.float32], cur: NDArray[np.float32], s: fl
     pts = cv2.goodFeaturesToTrack(p8, max_corners, 0.01, 5)
     if pts is None or len(pts) < min_inliers:
         return np.eye(3)
-    nxt, status, _ = cv2.calcOpticalFlowPyrLK(p8, c8, pts, None, winSize=(15, 15), maxLevel=2)
+    nxt, status, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]  # stubs lack nextPts=None
+        p8, c8, pts, None, winSize=(15, 15), maxLevel=2)
     ok = status.ravel() == 1
     if ok.sum() < min_inliers:
         return np.eye(3)
@@ -79,7 +81,8 @@ def homography_motion(prev: NDArray[np.float32], cur: NDArray[np.float32], s: fl
     if not 0.64 < det2 < 1.44:
         return np.eye(3)
     sm = scale_matrix(s)
-    return np.linalg.inv(sm) @ hm @ sm
+    motion: Mat3 = np.linalg.inv(sm) @ hm @ sm
+    return motion
 
 
 def estimate_motion(method: str, prev: NDArray[np.float32], cur: NDArray[np.float32],

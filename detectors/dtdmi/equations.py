@@ -1,733 +1,97 @@
-"""The DTDMI saliency equations (1)-(15) of [1], one small pure function each.
+"""The DTDMI saliency equations (1)-(15) of [1], one small pure function each, gathered in one
+namespace (``eq.<name>``) from the modules of the paper's sections:
 
-Plain numpy, no state and no allocation tricks: this module is the reference the fused (numba)
-kernels of :mod:`eaglemission.detectors.dtdmi.kernels` are tested against, and what the
-``literal`` preset of :class:`~eaglemission.detectors.dtdmi.DTDMIDetector` follows. Where the
-paper leaves a choice open, the choice is a parameter and is documented in
-docs/paper_choices.md ("DTDMI").
+- :mod:`.equations_static`: Sec. 2.1, Eqs. (1)-(6), and the static cues of the field and aerial
+  presets;
+- :mod:`.equations_dynamic`: Sec. 2.2, Eqs. (7)-(14);
+- :mod:`.equations_fusion`: Eq. (15) and the presets' readings of it.
 
-Shapes: ``(H, W)`` maps are float32 or float64; ``K`` is the number of colour clusters.
+Plain numpy, no state and no allocation tricks: the reference the fused (numba) kernels of
+:mod:`eaglemission.detectors.dtdmi.kernels` are tested against, and what the ``literal`` preset
+of :class:`~eaglemission.detectors.dtdmi.DTDMIDetector` follows. Where the paper leaves a choice
+open, the choice is a parameter and is documented in docs/paper_choices.md ("DTDMI").
 
 References
 ----------
 .. [1] "Biological Eagle-eye Inspired Target Detection for Unmanned Aerial Vehicles Equipped
    with a Manipulator" (eagle-eye multi-camera sensor and the DTDMI saliency method), Sec. 2,
    Eqs. (1)-(15). DOI unknown.
-.. [2] H. Fu, X. Cao, Z. Tu, "Cluster-Based Co-Saliency Detection", IEEE Trans. Image
-   Processing 22(10), 2013. DOI: 10.1109/TIP.2013.2260166.
-.. [3] W. Kim, C. Kim, "Spatiotemporal Saliency Detection Using Textural Contrast and Its
-   Applications", IEEE Trans. Circuits Syst. Video Technol. 24(4), 2014.
-   DOI: 10.1109/TCSVT.2013.2290579.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
-import numpy as np
-from numpy.typing import NDArray
-
-FloatArray = NDArray[np.floating]
-
-#: Eq. (1) of [1]: RGB -> LMS (rows L, M, S; columns R, G, B).
-RGB_TO_LMS = np.array(
-    [[0.3811, 0.5783, 0.0402],
-     [0.1967, 0.7244, 0.0782],
-     [0.0241, 0.1288, 0.8444]],
-    dtype=np.float64,
+from eaglemission.detectors.dtdmi.equations_dynamic import (
+    DERIVATIVE_MASK,
+    box_sum,
+    competitive_selection,
+    delay_update,
+    derivative_xy,
+    eigenvalue_discrepancy,
+    gradient_response,
+    inhibition_output,
+    multiscale_synthesis,
+    shift_neighbour,
+    structure_tensor,
+    synthesis_2d,
+    tau_steps,
+)
+from eaglemission.detectors.dtdmi.equations_fusion import (
+    boosted_saliency,
+    final_saliency,
+    fused_saliency_max,
+)
+from eaglemission.detectors.dtdmi.equations_static import (
+    LOG_LMS_TO_LAB,
+    RGB_TO_LMS,
+    FloatArray,
+    bin_contrast_cue,
+    block_contrast_cue,
+    contrast_cue,
+    distribution_cue,
+    gaussian_centre_weight,
+    inverse_square_distance,
+    lms_to_lalphabeta,
+    normalize_cue,
+    pool_colour_bins,
+    rgb_to_lms,
+    spatial_cue,
+    spatial_cue_sequence,
+    srgb_to_linear,
+    static_saliency,
 )
 
-#: The 1-D derivative mask s = [-1, 0, 1] of Sec. 2.2 of [1] (as printed: no 1/2).
-DERIVATIVE_MASK = np.array([-1.0, 0.0, 1.0])
-
-
-# -- 2.1 static saliency -------------------------------------------------------------------------
-def rgb_to_lms(rgb: FloatArray) -> FloatArray:
-    """Linear RGB -> LMS cone space, Eq. (1) of [1].
-
-    Parameters
-    ----------
-    rgb : ndarray of shape (..., 3)
-        Colours in R, G, B order (any consistent scale; OpenCV frames are BGR: reverse first).
-
-    Returns
-    -------
-    lms : ndarray of shape (..., 3)
-        L, M, S in the same scale as the input.
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (1).
-    """
-    rgb = np.asarray(rgb, dtype=np.float64)
-    return rgb @ RGB_TO_LMS.T
-
-
-def contrast_cue(centres: FloatArray, counts: FloatArray) -> FloatArray:
-    """Cluster contrast cue, Eq. (2) of [1] (after Fu et al. [2]).
-
-    ``lambda_c(k) = sum_{i != k} (n_i / N) * ||mu_k - mu_i||_2``.
-
-    Parameters
-    ----------
-    centres : ndarray of shape (K, C)
-        Mean feature (e.g. LMS colour) ``mu`` of each cluster.
-    counts : ndarray of shape (K,)
-        Pixel count ``n`` of each cluster; ``N`` is their sum.
-
-    Returns
-    -------
-    ndarray of shape (K,)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (2).
-    .. [2] Fu, Cao, Tu, TIP 2013, DOI 10.1109/TIP.2013.2260166.
-    """
-    centres = np.asarray(centres, dtype=np.float64)
-    counts = np.asarray(counts, dtype=np.float64)
-    total = counts.sum()
-    if total <= 0:
-        return np.zeros(len(counts))
-    dist = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)  # zero diagonal
-    return dist @ (counts / total)
-
-
-def inverse_square_distance(
-    rows: FloatArray, cols: FloatArray, centre_rc: tuple[float, float], min_d2_px2: float = 0.25
-) -> FloatArray:
-    """Spatial weight ``1 / ||x_p - o||^2`` of a pixel, Eq. (3) of [1].
-
-    The weight is singular at the centre ``o``; the squared distance is clamped from below by
-    ``min_d2_px2`` (default a quarter pixel squared: half a pixel along each axis, the nearest a
-    pixel centre can be to ``o`` when both image sides are even).
-
-    Parameters
-    ----------
-    rows, cols : ndarray, broadcastable
-        Pixel coordinates (row, column).
-    centre_rc : (float, float)
-        Image centre ``o`` as (row, column), ``((H - 1) / 2, (W - 1) / 2)``.
-    min_d2_px2 : float
-        Lower clamp of the squared distance, px^2.
-
-    Returns
-    -------
-    ndarray, broadcast shape of ``rows`` and ``cols``
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (3).
-    """
-    d2 = (np.asarray(rows, np.float64) - centre_rc[0]) ** 2 + (
-        np.asarray(cols, np.float64) - centre_rc[1]) ** 2
-    return 1.0 / np.maximum(d2, min_d2_px2)
-
-
-def gaussian_centre_weight(
-    rows: FloatArray, cols: FloatArray, shape_hw: tuple[int, int], sigma_frac: float = 0.25
-) -> FloatArray:
-    """Gaussian centre weight, the replacement for Eq. (3) of [1] used by Fu et al. [2].
-
-    ``exp(-((r - r0)^2 / (2 (s H)^2) + (c - c0)^2 / (2 (s W)^2)))`` with ``s = sigma_frac``:
-    bounded at the centre (no singularity) and scale-free (the same weight at any resolution).
-
-    Parameters
-    ----------
-    rows, cols : ndarray, broadcastable
-    shape_hw : (int, int)
-        Image height and width.
-    sigma_frac : float
-        Standard deviation as a fraction of the image height (rows) and width (columns).
-
-    Returns
-    -------
-    ndarray, broadcast shape of ``rows`` and ``cols``, in (0, 1]
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (3).
-    .. [2] Fu, Cao, Tu, TIP 2013, Eq. (5), DOI 10.1109/TIP.2013.2260166.
-    """
-    h, w = shape_hw
-    r0, c0 = (h - 1) / 2.0, (w - 1) / 2.0
-    dr = (np.asarray(rows, np.float64) - r0) / (sigma_frac * h)
-    dc = (np.asarray(cols, np.float64) - c0) / (sigma_frac * w)
-    return np.exp(-0.5 * (dr * dr + dc * dc))
-
-
-def spatial_cue(weight_sums: FloatArray, counts: FloatArray) -> FloatArray:
-    """Cluster spatial cue of one image, Eq. (4) of [1].
-
-    ``lambda_s(k) = (1 / n_k) * sum_{i in C_k} w_i`` with ``w`` the Eq. (3) weight.
-
-    Parameters
-    ----------
-    weight_sums : ndarray of shape (K,)
-        Sum of the spatial weights of the pixels of each cluster.
-    counts : ndarray of shape (K,)
-        Pixel count ``n_k`` of each cluster.
-
-    Returns
-    -------
-    ndarray of shape (K,)
-        0 for empty clusters.
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (4).
-    """
-    weight_sums = np.asarray(weight_sums, np.float64)
-    counts = np.asarray(counts, np.float64)
-    return np.divide(weight_sums, counts, out=np.zeros_like(weight_sums), where=counts > 0)
-
-
-def spatial_cue_sequence(weight_sums: FloatArray, counts: FloatArray) -> FloatArray:
-    """Cluster spatial cue over an image sequence, Eq. (5) of [1].
-
-    ``lambda_s(k) = (1 / n_k) * sum_j sum_i w(x_i^j) * delta(c(x_i^j) - C_k)``, the Kronecker
-    delta selecting the pixels of cluster k in image j. ``n_k`` is read as the number of pixels
-    of cluster k over the whole window (so the cue is a mean weight, comparable between clusters
-    of any size; docs/paper_choices.md).
-
-    Parameters
-    ----------
-    weight_sums : ndarray of shape (M, K)
-        Per image j of the window, the sum of the Eq. (3) weights of each cluster's pixels.
-    counts : ndarray of shape (M, K)
-        Per image, each cluster's pixel count.
-
-    Returns
-    -------
-    ndarray of shape (K,)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (5).
-    """
-    return spatial_cue(np.sum(weight_sums, axis=0), np.sum(counts, axis=0))
-
-
-def normalize_cue(cue: FloatArray) -> FloatArray:
-    """Normalisation of a cluster cue before Eq. (6) of [1]: divide by the largest value.
-
-    The paper says only that the spatial cue is normalised "after calculating the spatial
-    saliency of all clusters"; dividing by the maximum keeps the ratios between clusters (a
-    min-max stretch would zero the least central cluster).
-
-    Parameters
-    ----------
-    cue : ndarray of shape (K,)
-
-    Returns
-    -------
-    ndarray of shape (K,), in [0, 1] (all zeros if the cue is all zeros)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), text after Eq. (5).
-    """
-    cue = np.asarray(cue, np.float64)
-    top = float(cue.max()) if cue.size else 0.0
-    return cue / top if top > 0 else np.zeros_like(cue)
-
-
-def static_saliency(spatial: FloatArray, contrast: FloatArray) -> FloatArray:
-    """Static saliency of each cluster, Eq. (6) of [1]: ``S_s = lambda_s * lambda_c``.
-
-    Every pixel of cluster k gets the value of entry k (paint with ``values[labels]``).
-
-    Parameters
-    ----------
-    spatial, contrast : ndarray of shape (K,)
-
-    Returns
-    -------
-    ndarray of shape (K,)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (6).
-    """
-    return np.asarray(spatial, np.float64) * np.asarray(contrast, np.float64)
-
-
-# -- 2.2 midbrain dynamic perception -------------------------------------------------------------
-def derivative_xy(grey: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Horizontal and vertical derivatives with the mask s = [-1, 0, 1] of Sec. 2.2 of [1].
-
-    ``g_x[r, c] = I[r, c + 1] - I[r, c - 1]`` (no 1/2, as printed), same for rows; borders are
-    replicated (so the derivative across the border is taken against the edge pixel).
-
-    Parameters
-    ----------
-    grey : ndarray of shape (H, W)
-
-    Returns
-    -------
-    gx, gy : ndarrays of shape (H, W), float32
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Sec. 2.2, before Eq. (7).
-    """
-    g = np.asarray(grey, np.float32)
-    p = np.pad(g, 1, mode="edge")
-    gx = p[1:-1, 2:] - p[1:-1, :-2]
-    gy = p[2:, 1:-1] - p[:-2, 1:-1]
-    return gx, gy
-
-
-def gradient_response(gx: FloatArray, gy: FloatArray) -> FloatArray:
-    """Gradient response ``G = sqrt(g_x^2 + g_y^2)``, Eq. (7) of [1].
-
-    Parameters
-    ----------
-    gx, gy : ndarray of shape (H, W)
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (7).
-    """
-    return np.sqrt(gx * gx + gy * gy)
-
-
-def inhibition_output(g: FloatArray, g_delayed: FloatArray, tau: float) -> FloatArray:
-    """Inhibition-unit output ``G_tau(t) = (G(t) - G_d(t)) / tau``, Eq. (8) of [1].
-
-    Parameters
-    ----------
-    g, g_delayed : ndarray of shape (H, W)
-        Response ``G(t)`` and delay-unit state ``G_d(t)``.
-    tau : float
-        Delay parameter in frame steps (>= 1 for a stable update). The detector derives it from
-        a time constant in seconds and each frame's time step (docs/dtdmi.md).
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (8).
-    """
-    return (g - g_delayed) / tau
-
-
-def delay_update(g_delayed: FloatArray, g_tau: FloatArray) -> FloatArray:
-    """Delay-unit update ``G_d(t + 1) = G_d(t) + G_tau(t)``, Eq. (9) of [1] (``G_d(0) = 0``).
-
-    Parameters
-    ----------
-    g_delayed, g_tau : ndarray of shape (H, W)
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (9).
-    """
-    return g_delayed + g_tau
-
-
-def tau_steps(dt_s: float, tau_s: float, *, exact: bool = True) -> float:
-    """The dimensionless ``tau`` of Eqs. (8)-(9) of [1] for a time step ``dt_s`` (seconds).
-
-    ``exact``: ``1 / (1 - exp(-dt / tau_s))``, the exact discretisation of the first-order delay
-    ``dG_d/dt = (G - G_d) / tau_s`` for an input held over the step, so the state after a given
-    time is the same at any frame rate (dropped frames do not change it). Otherwise Euler's
-    ``max(1, tau_s / dt)``, Eq. (8) with tau in frames as printed.
-
-    Parameters
-    ----------
-    dt_s : float
-        Time since the previous frame, > 0.
-    tau_s : float
-        Time constant of the delay unit, > 0.
-
-    Returns
-    -------
-    float, >= 1
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eqs. (8)-(9).
-    """
-    if exact:
-        return float(1.0 / -np.expm1(-dt_s / tau_s))
-    return max(1.0, tau_s / dt_s)
-
-
-def shift_neighbour(a: FloatArray, axis: int) -> FloatArray:
-    """The next pixel along ``axis`` (column for x, row for y), border replicated.
-
-    This is the "opposite competitive branch" of Eq. (10) of [1] as a Reichardt-style
-    correlator: ``G'`` and ``G_d'`` are the response and delay state of the neighbouring pixel
-    (docs/paper_choices.md).
-
-    Parameters
-    ----------
-    a : ndarray of shape (H, W)
-    axis : {0, 1}
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-    """
-    out = np.empty_like(a)
-    if axis == 1:
-        out[:, :-1] = a[:, 1:]
-        out[:, -1] = a[:, -1]
-    else:
-        out[:-1] = a[1:]
-        out[-1] = a[-1]
-    return out
-
-
-def competitive_selection(
-    g: FloatArray, g_delayed_opp: FloatArray, g_opp: FloatArray, g_delayed: FloatArray
-) -> FloatArray:
-    """Competitive-selection-unit output ``R = G G_d' - G' G_d``, Eq. (10) of [1].
-
-    Parameters
-    ----------
-    g : ndarray of shape (H, W)
-        ``G(t)`` of this branch.
-    g_delayed_opp : ndarray of shape (H, W)
-        ``G_d'(t)``, the delay state of the opposite branch.
-    g_opp : ndarray of shape (H, W)
-        ``G'(t)``, the response of the opposite branch.
-    g_delayed : ndarray of shape (H, W)
-        ``G_d(t)``, this branch's delay state (before the Eq. (9) update of frame t).
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (10).
-    """
-    return g * g_delayed_opp - g_opp * g_delayed
-
-
-def synthesis_2d(r_x: FloatArray, r_y: FloatArray) -> FloatArray:
-    """Two-dimensional synthesis ``O = sqrt(R_x^2 + R_y^2)``, Eq. (11) of [1].
-
-    Parameters
-    ----------
-    r_x, r_y : ndarray of shape (H, W)
-        Eq. (10) outputs of the horizontal and vertical correlators.
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (11).
-    """
-    return np.sqrt(r_x * r_x + r_y * r_y)
-
-
-def box_sum(a: FloatArray, radius_px: int) -> FloatArray:
-    """Sum over the ``(2 r + 1)^2`` square neighbourhood ``P_i`` of every pixel (zero outside).
-
-    Parameters
-    ----------
-    a : ndarray of shape (H, W)
-    radius_px : int, >= 0
-
-    Returns
-    -------
-    ndarray of shape (H, W), float64
-    """
-    a = np.asarray(a, np.float64)
-    if radius_px <= 0:
-        return a.copy()
-    p = np.pad(a, radius_px)
-    c = np.cumsum(np.cumsum(p, axis=0), axis=1)
-    c = np.pad(c, ((1, 0), (1, 0)))
-    k = 2 * radius_px + 1
-    h, w = a.shape
-    return c[k:k + h, k:k + w] - c[:h, k:k + w] - c[k:k + h, :w] + c[:h, :w]
-
-
-def structure_tensor(o: FloatArray, radius_px: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Neighbourhood structure tensor of the dynamic feature, Eq. (12) of [1] (after [3]).
-
-    ``D(i) = [[sum O_x^2, sum O_x O_y], [sum O_x O_y, sum O_y^2]]`` over the square
-    neighbourhood ``P_i`` of radius ``radius_px``; ``O_x, O_y`` are the [-1, 0, 1] derivatives of
-    ``O`` (unweighted sums, as printed).
-
-    Parameters
-    ----------
-    o : ndarray of shape (H, W)
-        Eq. (11) output.
-    radius_px : int
-        Neighbourhood half-size.
-
-    Returns
-    -------
-    dxx, dxy, dyy : ndarrays of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (12).
-    .. [3] Kim, Kim, TCSVT 2014, DOI 10.1109/TCSVT.2013.2290579.
-    """
-    ox, oy = derivative_xy(o)
-    ox = ox.astype(np.float64)
-    oy = oy.astype(np.float64)
-    return box_sum(ox * ox, radius_px), box_sum(ox * oy, radius_px), box_sum(oy * oy, radius_px)
-
-
-def eigenvalue_discrepancy(dxx: FloatArray, dxy: FloatArray, dyy: FloatArray) -> FloatArray:
-    """``S_M = (lambda_1 - lambda_2)^2`` of the 2x2 tensor ``D``, Eq. (13) of [1].
-
-    Closed form: for a symmetric 2x2 matrix, ``(lambda_1 - lambda_2)^2 = (a - c)^2 + 4 b^2``
-    (the squared discriminant), with no square root.
-
-    Parameters
-    ----------
-    dxx, dxy, dyy : ndarray of shape (H, W)
-        Entries a, b, c of ``D = [[a, b], [b, c]]``.
-
-    Returns
-    -------
-    ndarray of shape (H, W), >= 0
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (13).
-    """
-    d = dxx - dyy
-    return d * d + 4.0 * dxy * dxy
-
-
-def multiscale_synthesis(maps: Sequence[FloatArray]) -> FloatArray:
-    """Mean of the dynamic maps of ``n`` scales, Eq. (14) of [1].
-
-    Parameters
-    ----------
-    maps : sequence of n ndarrays of shape (H, W)
-        ``S_M(j, r)`` brought to a common resolution.
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (14).
-    """
-    if len(maps) == 0:
-        raise ValueError("maps: need at least one scale")
-    out = np.array(maps[0], dtype=np.float64)
-    for m in maps[1:]:
-        out += m
-    return out / len(maps)
-
-
-def final_saliency(static: FloatArray, dynamic: FloatArray) -> FloatArray:
-    """Final DTDMI saliency ``S = S_s x S_M`` (element-wise), Eq. (15) of [1].
-
-    Parameters
-    ----------
-    static, dynamic : ndarray of shape (H, W)
-
-    Returns
-    -------
-    ndarray of shape (H, W)
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Eq. (15).
-    """
-    return np.asarray(static) * np.asarray(dynamic)
-
-
-# -- field preset: named deviations from [1] (docs/paper_choices.md, "field preset") -------------
-#: Reinhard et al. [4]: log10 LMS -> l-alpha-beta (rows l, alpha, beta). The rows are
-#: orthonormal, so distances in l-alpha-beta equal distances in log10 LMS.
-LOG_LMS_TO_LAB = np.diag([1 / np.sqrt(3), 1 / np.sqrt(6), 1 / np.sqrt(2)]) @ np.array(
-    [[1.0, 1.0, 1.0], [1.0, 1.0, -2.0], [1.0, -1.0, 0.0]])
-
-
-def srgb_to_linear(rgb: FloatArray) -> FloatArray:
-    """sRGB-encoded values in [0, 1] -> linear RGB (IEC 61966-2-1 decoding).
-
-    Eq. (1) of [1] is Reinhard's RGB -> LMS matrix [4], which expects linear RGB; camera frames
-    are gamma-encoded.
-    """
-    x = np.asarray(rgb, dtype=np.float64)
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
-def lms_to_lalphabeta(lms: FloatArray, floor: float = 1e-4) -> FloatArray:
-    """LMS (Eq. (1) of [1]) -> Reinhard's opponent space l-alpha-beta [4] (log10, then rotate).
-
-    ``l`` is log luminance, ``alpha`` yellow-blue, ``beta`` red-green. ``floor`` keeps log10
-    finite for black.
-
-    References
-    ----------
-    .. [4] E. Reinhard, M. Ashikhmin, B. Gooch, P. Shirley, "Color Transfer between Images",
-       IEEE CG&A 21(5), 2001. DOI: 10.1109/38.946629.
-    """
-    return np.log10(np.maximum(np.asarray(lms, np.float64), floor)) @ LOG_LMS_TO_LAB.T
-
-
-def bin_contrast_cue(features: FloatArray, centres: FloatArray, counts: FloatArray) -> FloatArray:
-    """Eq. (2) of [1] evaluated for each colour bin rather than each cluster (field preset).
-
-    ``lambda_c(b) = sum_k (n_k / N) ||f_b - mu_k||``: the bin's own colour against the K cluster
-    means, so a small target whose colour shares a cluster with common colours keeps its own
-    contrast (the histogram contrast of Cheng et al., with the clusters as the histogram). For
-    a bin at a cluster mean this is Eq. (2) of that cluster. Not normalised: the value is in
-    the feature space's units, so a frame without a distinct colour stays low.
-
-    Parameters
-    ----------
-    features : ndarray of shape (B, C)
-    centres : ndarray of shape (K, C)
-    counts : ndarray of shape (K,)
-
-    Returns
-    -------
-    ndarray of shape (B,)
-    """
-    counts = np.asarray(counts, np.float64)
-    total = counts.sum()
-    if total <= 0:
-        return np.zeros(len(features))
-    d = np.linalg.norm(np.asarray(features)[:, None, :] - np.asarray(centres)[None], axis=2)
-    return d @ (counts / total)
-
-
-def distribution_cue(moments: FloatArray, counts: FloatArray, diag_px: float,
-                     sigma_frac: float) -> FloatArray:
-    """Spatial compactness of each colour bin (field preset; replaces Eqs. (3)-(5) of [1]).
-
-    ``exp(-(spread_b / (sigma_frac * diag))^2)`` where ``spread_b`` is the RMS distance of the
-    bin's pixels to their centroid (Perazzi et al.'s "element distribution"): a colour spread
-    over the whole image (ground texture, sky) is background, a compact one (an object) keeps
-    its contrast. Bins without pixels get 0 (no evidence of compactness).
-
-    Parameters
-    ----------
-    moments : ndarray of shape (B, 4)
-        Per bin: sums of column, row, column^2, row^2 over its (sampled) pixels.
-    counts : ndarray of shape (B,)
-        Pixels per bin.
-    diag_px : float
-        Image diagonal (same pixel units as the moments).
-    sigma_frac : float
-        Spread (fraction of the diagonal) at which the cue falls to exp(-1).
-
-    Returns
-    -------
-    ndarray of shape (B,), in [0, 1]
-    """
-    n = np.asarray(counts, np.float64)
-    m = np.asarray(moments, np.float64)
-    nn = np.maximum(n, 1.0)
-    var = (m[:, 2] / nn - (m[:, 0] / nn) ** 2) + (m[:, 3] / nn - (m[:, 1] / nn) ** 2)
-    spread = np.sqrt(np.maximum(var, 0.0)) / (sigma_frac * diag_px)
-    return np.where(n > 0, np.exp(-spread * spread), 0.0)
-
-
-def boosted_saliency(static: FloatArray, dynamic: FloatArray, gain: float) -> FloatArray:
-    """Eq. (15) of [1] with the dynamic map boosting instead of gating (field preset).
-
-    ``S = S_s x (1 + gain x S_M)``: a static target is found by its colour alone (``S_M = 0``
-    leaves ``S_s``), one that moves relative to its background gains from the dynamic map.
-    """
-    return np.asarray(static) * (1.0 + gain * np.asarray(dynamic))
-
-
-def pool_colour_bins(values: FloatArray, bits: int = 4) -> FloatArray:
-    """Sum of each colour bin and its 26 neighbours in the (2^bits)^3 histogram grid (field).
-
-    The distribution cue pools a bin's pixels with those of adjacent colours (a box version of
-    Perazzi et al.'s colour-similarity weighting), so a bin that holds a few pixels of a
-    widespread colour (noise on the horizon, a shaded edge) is not taken as compact.
-
-    Parameters
-    ----------
-    values : ndarray of shape (B,) or (B, C), B = 2^(3 bits), bin index ``b << 2 bits | g << bits | r``
-
-    Returns
-    -------
-    ndarray of the same shape
-    """
-    n = 1 << bits
-    v = np.asarray(values, np.float64)
-    grid = v.reshape((n, n, n) + v.shape[1:])
-    for axis in range(3):
-        out = grid.copy()
-        lo = [slice(None)] * grid.ndim
-        hi = [slice(None)] * grid.ndim
-        lo[axis], hi[axis] = slice(0, n - 1), slice(1, n)
-        out[tuple(lo)] += grid[tuple(hi)]
-        out[tuple(hi)] += grid[tuple(lo)]
-        grid = out
-    return grid.reshape(v.shape)
-
-
-def block_contrast_cue(features: FloatArray, radius_px: int, surround: float) -> FloatArray:
-    """Eq. (2) of [1] read as the text describes it, per pixel block (aerial preset).
-
-    Sec. 2.1 says the contrast cue "measures the color difference between the current pixel
-    block and the surrounding pixel block"; Eq. (2) as printed sums cluster-mean distances over
-    the whole image. This is the block reading: ``||mean_C(p) - mean_S(p)||_2``, with ``C`` the
-    ``(2r+1)^2`` block centred on ``p`` and ``S`` the ``(2R+1)^2`` block around it,
-    ``R = round(surround * r)`` (a centre-surround difference of box means, as in Itti et al.'s
-    centre-surround maps). A uniform area gives 0 and a small object of another colour (or
-    brightness) a value in the features' own units, so the cue keeps an absolute scale.
-
-    Parameters
-    ----------
-    features : ndarray of shape (H, W, C), float32
-        Per-pixel colour features (the detector uses CIE L*a*b* with a weighted L*).
-    radius_px : int
-        ``r``, half-size of the centre block (>= 1).
-    surround : float
-        ``R / r`` (> 1).
-
-    Returns
-    -------
-    ndarray of shape (H, W), float32
-
-    References
-    ----------
-    .. [1] Eagle-eye inspired target detection (DTDMI), Sec. 2.1, Eq. (2).
-    .. [5] L. Itti, C. Koch, E. Niebur, "A model of saliency-based visual attention for rapid
-       scene analysis", IEEE TPAMI 20(11), 1998. DOI: 10.1109/34.730558.
-    """
-    import cv2
-
-    f = np.ascontiguousarray(features, dtype=np.float32)
-    r = max(1, int(radius_px))
-    big = max(r + 1, int(round(surround * r)))
-    centre = cv2.blur(f, (2 * r + 1, 2 * r + 1), borderType=cv2.BORDER_REFLECT)
-    around = cv2.blur(f, (2 * big + 1, 2 * big + 1), borderType=cv2.BORDER_REFLECT)
-    diff = centre - around
-    if diff.ndim == 2:
-        return np.abs(diff)
-    return np.sqrt(np.einsum("hwc,hwc->hw", diff, diff, dtype=np.float32))
-
-
-def fused_saliency_max(static: FloatArray, dynamic: FloatArray, gain: float) -> FloatArray:
-    """Eq. (15) of [1] as a maximum (aerial preset): ``S = max(S_s, gain x S_M)``.
-
-    Either cue alone can nominate a region: a static object by its contrast, a moving one by the
-    midbrain map, with ``gain`` putting S_M on S_s's scale. The printed product needs both.
-    """
-    return np.maximum(np.asarray(static), gain * np.asarray(dynamic))
+__all__ = [
+    "FloatArray",
+    "DERIVATIVE_MASK",
+    "box_sum",
+    "competitive_selection",
+    "delay_update",
+    "derivative_xy",
+    "eigenvalue_discrepancy",
+    "gradient_response",
+    "inhibition_output",
+    "multiscale_synthesis",
+    "shift_neighbour",
+    "structure_tensor",
+    "synthesis_2d",
+    "tau_steps",
+    "boosted_saliency",
+    "final_saliency",
+    "fused_saliency_max",
+    "LOG_LMS_TO_LAB",
+    "RGB_TO_LMS",
+    "bin_contrast_cue",
+    "block_contrast_cue",
+    "contrast_cue",
+    "distribution_cue",
+    "gaussian_centre_weight",
+    "inverse_square_distance",
+    "lms_to_lalphabeta",
+    "normalize_cue",
+    "pool_colour_bins",
+    "rgb_to_lms",
+    "spatial_cue",
+    "spatial_cue_sequence",
+    "srgb_to_linear",
+    "static_saliency",
+]

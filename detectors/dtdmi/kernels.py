@@ -27,12 +27,25 @@ Threads: the kernels are serial (one core per camera, as the speed target is sta
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+I64 = NDArray[np.int64]
+#: float32 grey in 0..1, or the 8-bit grey image (read with a scale of 1 / 255)
+Grey = NDArray[np.float32] | NDArray[np.uint8]
+#: :func:`linear_coeffs` of the rows then of the columns: (index, weight, index, weight)
+Coeffs = tuple[NDArray[Any], ...]
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _response_px(grey, g_delayed, g_prev, gain, r, rm, rp, c, s):  # pragma: no cover - jitted
+def _response_px(grey: Grey, g_delayed: F32, g_prev: F32, gain: np.float32, r: int, rm: int,
+                 rp: int, c: int, s: np.float32) -> None:  # pragma: no cover - jitted
     w = grey.shape[1]
     gx = np.float32(grey[r, min(c + 1, w - 1)]) * s - np.float32(grey[r, max(c - 1, 0)]) * s
     gy = np.float32(grey[rp, c]) * s - np.float32(grey[rm, c]) * s
@@ -42,7 +55,8 @@ def _response_px(grey, g_delayed, g_prev, gain, r, rm, rp, c, s):  # pragma: no 
 
 
 @njit(cache=True, nogil=True)
-def _response_row(grey, g_delayed, g_prev, gain, r, s):  # pragma: no cover - jitted
+def _response_row(grey: Grey, g_delayed: F32, g_prev: F32, gain: np.float32, r: int,
+                  s: np.float32) -> None:  # pragma: no cover - jitted
     """Row ``r`` of Eq. (7) into ``g_prev`` and Eqs. (8)-(9) into ``g_delayed``, in place.
 
     The grey value is ``grey * s``: float32 ``grey`` with ``s = 1``, or the 8-bit grey image
@@ -71,7 +85,7 @@ def _response_row(grey, g_delayed, g_prev, gain, r, s):  # pragma: no cover - ji
 
 
 @njit(cache=True, nogil=True)
-def _correlate_row(g, g_delayed, o, r):  # pragma: no cover - jitted
+def _correlate_row(g: F32, g_delayed: F32, o: F32, r: int) -> None:  # pragma: no cover - jitted
     """Row ``r`` of Eqs. (10)-(11) (needs rows ``r`` and ``r + 1`` of ``g``, ``g_delayed``)."""
     h, w = g.shape
     rp = r + 1 if r < h - 1 else h - 1
@@ -96,21 +110,23 @@ def _correlate_row(g, g_delayed, o, r):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True)
-def response_and_delay(grey, g_delayed, g_prev, gain):  # pragma: no cover - jitted
+def response_and_delay(grey: F32, g_delayed: F32, g_prev: F32,
+                       gain: np.float32) -> None:  # pragma: no cover
     """Eq. (7) into ``g_prev`` and Eqs. (8)-(9) into ``g_delayed``, in place."""
     for r in range(grey.shape[0]):
         _response_row(grey, g_delayed, g_prev, gain, r, np.float32(1.0))
 
 
 @njit(cache=True, nogil=True)
-def correlate(g, g_delayed, o):  # pragma: no cover - jitted
+def correlate(g: F32, g_delayed: F32, o: F32) -> None:  # pragma: no cover - jitted
     """Eqs. (10)-(11): ``o = |(G Gd' - G' Gd)_x, (G Gd' - G' Gd)_y|``, neighbour = next pixel."""
     for r in range(g.shape[0]):
         _correlate_row(g, g_delayed, o, r)
 
 
 @njit(cache=True, nogil=True)
-def response_and_correlate(grey, g_delayed, g_prev, gain, o):  # pragma: no cover - jitted
+def response_and_correlate(grey: F32, g_delayed: F32, g_prev: F32, gain: np.float32,
+                           o: F32) -> None:  # pragma: no cover - jitted
     """:func:`response_and_delay` then :func:`correlate` in one sweep over the rows.
 
     Row ``r`` of Eqs. (10)-(11) needs the updated rows ``r`` and ``r + 1`` only, so the
@@ -125,7 +141,8 @@ def response_and_correlate(grey, g_delayed, g_prev, gain, o):  # pragma: no cove
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _tensor_row(o, r, radius, pad, hu, hv):  # pragma: no cover - jitted
+def _tensor_row(o: F32, r: int, radius: int, pad: F32, hu: F32,
+                hv: F32) -> None:  # pragma: no cover
     """Row ``r`` of ``u = O_x^2 - O_y^2`` and ``v = 2 O_x O_y`` ([-1, 0, 1] derivatives,
     replicated border) into the zero-padded scratch rows ``pad[0]``, ``pad[1]`` (width
     W + 2 radius), then their horizontal (2 radius + 1) box sums into ``hu``, ``hv``
@@ -190,7 +207,8 @@ def _tensor_row(o, r, radius, pad, hu, hv):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _push_row(o, j, radius, pad, ring, pairs):  # pragma: no cover - jitted
+def _push_row(o: F32, j: int, radius: int, pad: F32, ring: F32,
+              pairs: F32) -> None:  # pragma: no cover
     """Row ``j`` of the horizontal sums into ``ring[j % k]`` (zeros for ``j >= H``: the
     zero-padded box sum); with radius 2 also the pair ``pairs[(j - 1) % k] = row j-1 + row j``."""
     h = o.shape[0]
@@ -211,7 +229,8 @@ def _push_row(o, j, radius, pad, ring, pairs):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _vertical_sum(ring, pairs, r, radius, au, av):  # pragma: no cover - jitted
+def _vertical_sum(ring: F32, pairs: F32, r: int, radius: int, au: F32,
+                  av: F32) -> None:  # pragma: no cover
     """Sum of the ring's rows ``r - radius .. r + radius`` into ``au``, ``av`` (radius 2:
     ``(R0 + R1) + (R2 + R3) + R4`` from the pairs, 3 loads per value instead of 5)."""
     k = 2 * radius + 1
@@ -239,7 +258,7 @@ def _vertical_sum(ring, pairs, r, radius, au, av):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _tensor_buffers(w, radius):  # pragma: no cover - jitted
+def _tensor_buffers(w: int, radius: int) -> tuple[F32, F32, F32]:  # pragma: no cover - jitted
     """Zeroed ring, pair ring and padded scratch rows of the Eq. (12) box sums."""
     k = 2 * radius + 1
     return (np.zeros((k, 2, w), np.float32), np.zeros((k, 2, w), np.float32),
@@ -247,7 +266,8 @@ def _tensor_buffers(w, radius):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def tensor_discrepancy(o, radius, floor, sm):  # pragma: no cover - jitted
+def tensor_discrepancy(o: F32, radius: int, floor: float,
+                       sm: F32) -> np.float32:  # pragma: no cover
     """Eqs. (12)-(13): box-summed structure tensor of ``o``; ``max((l1 - l2)^2 - floor, 0)``.
 
     ``(l1 - l2)^2 = (D_xx - D_yy)^2 + 4 D_xy^2 = |sum (O_x + i O_y)^2|^2``: only the two box
@@ -276,11 +296,12 @@ def tensor_discrepancy(o, radius, floor, sm):  # pragma: no cover - jitted
             smr[c] = v
             t = lanes[c]
             lanes[c] = v if v > t else t
-    return lanes.max()
+    top: np.float32 = lanes.max()
+    return top
 
 
 @njit(cache=True, nogil=True)
-def sampled_hist(bgr, step, wgrid, hist, whist):  # pragma: no cover - jitted
+def sampled_hist(bgr: U8, step: int, wgrid: F64, hist: F64, whist: F64) -> None:  # pragma: no cover
     """Counts and spatial-weight sums of the 12-bit colour bins over the pixels on a ``step``
     grid into ``hist`` / ``whist`` (zeroed here); the full-resolution bins are computed on the
     fly where they are painted (:func:`combine`, :func:`paint_static`).
@@ -304,13 +325,13 @@ def sampled_hist(bgr, step, wgrid, hist, whist):  # pragma: no cover - jitted
             counts[lane, i] += 1
             wsums[lane, i] += wrow[j]
             j += 1
-    for i in range(nb):
-        hist[i] = float(counts[0, i] + counts[1, i] + counts[2, i] + counts[3, i])
-        whist[i] = (wsums[0, i] + wsums[1, i]) + (wsums[2, i] + wsums[3, i])
+    for b in range(nb):
+        hist[b] = float(counts[0, b] + counts[1, b] + counts[2, b] + counts[3, b])
+        whist[b] = (wsums[0, b] + wsums[1, b]) + (wsums[2, b] + wsums[3, b])
 
 
 @njit(cache=True, nogil=True)
-def sampled_moments(bgr, step, hist, mom):  # pragma: no cover - jitted
+def sampled_moments(bgr: U8, step: int, hist: F64, mom: F64) -> None:  # pragma: no cover - jitted
     """Counts and spatial moments (sum of column, row, column^2, row^2) of the 12-bit colour
     bins over the pixels on a ``step`` grid into ``hist`` (B,) / ``mom`` (B, 4), zeroed here
     (field preset: :func:`.equations.distribution_cue`).
@@ -335,15 +356,15 @@ def sampled_moments(bgr, step, hist, mom):  # pragma: no cover - jitted
             a[3] += np.int64(c) * c
             a[4] += r2
             j += 1
-    for i in range(nb):
-        t = acc[i]
-        hist[i] = float(t[0, 0] + t[1, 0] + t[2, 0] + t[3, 0])
+    for b in range(nb):
+        t = acc[b]
+        hist[b] = float(t[0, 0] + t[1, 0] + t[2, 0] + t[3, 0])
         for q in range(4):
-            mom[i, q] = float(t[0, q + 1] + t[1, q + 1] + t[2, q + 1] + t[3, q + 1])
+            mom[b, q] = float(t[0, q + 1] + t[1, q + 1] + t[2, q + 1] + t[3, q + 1])
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def boost(bgr, lut, gain, out):  # pragma: no cover - jitted
+def boost(bgr: U8, lut: F32, gain: float, out: F32) -> np.float32:  # pragma: no cover - jitted
     """``out = lut[bin(bgr)] * (1 + gain * out)`` in place (field preset's Eq. (15)); returns
     the maximum of ``out``."""
     h, w = out.shape
@@ -359,11 +380,13 @@ def boost(bgr, lut, gain, out):  # pragma: no cover - jitted
             orow[c] = v
             t = lanes[c]
             lanes[c] = v if v > t else t
-    return lanes.max()
+    top: np.float32 = lanes.max()
+    return top
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def paint_static(bgr, lut, centre, use_centre, out):  # pragma: no cover - jitted
+def paint_static(bgr: U8, lut: F32, centre: F32, use_centre: bool,
+                 out: F32) -> np.float32:  # pragma: no cover
     """``out = lut[bin(bgr)] (* centre)``: the static map alone; returns its maximum."""
     h, w = out.shape
     lanes = np.zeros(w, np.float32)
@@ -379,11 +402,12 @@ def paint_static(bgr, lut, centre, use_centre, out):  # pragma: no cover - jitte
             orow[c] = v
             t = lanes[c]
             lanes[c] = v if v > t else t
-    return lanes.max()
+    top: np.float32 = lanes.max()
+    return top
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _double_row(src, dst):  # pragma: no cover - jitted
+def _double_row(src: F32, dst: F32) -> None:  # pragma: no cover - jitted
     """``dst`` (2 n) = ``src`` (n) resized x2 bilinearly, as :func:`linear_coeffs` gives it:
     ``dst[2 m] = src[m - 1] / 4 + 3 src[m] / 4``, ``dst[2 m + 1] = 3 src[m] / 4 + src[m + 1] / 4``,
     the end pixels copied."""
@@ -402,7 +426,8 @@ def _double_row(src, dst):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _upsampled_row(base, up, r, hbuf, tags):  # pragma: no cover - jitted
+def _upsampled_row(base: F32, up: Coeffs, r: int, hbuf: F32,
+                   tags: I64) -> np.float32:  # pragma: no cover
     """Row ``r`` of ``cv2.resize(base, INTER_LINEAR)`` (``up`` from :func:`linear_coeffs`):
     the two source rows interpolated horizontally (kept in ``hbuf``, their indices in
     ``tags``, as consecutive output rows share them), then vertically, as OpenCV does."""
@@ -431,14 +456,15 @@ def _upsampled_row(base, up, r, hbuf, tags):  # pragma: no cover - jitted
                 fx = xw[c]
                 dst[c] = src[x0] * (np.float32(1.0) - fx) + src[x1] * fx
         tags[q] = y
-    fy = yw[r]
+    fy: np.float32 = yw[r]
     return fy
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _combine_row(s0, inv0, gamma, has_full, base, up, hbuf, tags, r, inv_n, lut, bgr,
-                 use_static, centre_row, centre_col, use_centre, row,
-                 boost_gain=-1.0):  # pragma: no cover
+def _combine_row(s0: F32, inv0: np.float32, gamma: float, has_full: bool, base: F32, up: Coeffs,
+                 hbuf: F32, tags: I64, r: int, inv_n: np.float32, lut: F32, bgr: U8,
+                 use_static: bool, centre_row: F32, centre_col: F32, use_centre: bool, row: F32,
+                 boost_gain: float = -1.0) -> None:  # pragma: no cover
     """Row ``r`` of Eqs. (14)-(15) into ``row`` (see :func:`combine`); ``s0`` is row ``r`` of
     the full-resolution Eq. (13) map. ``boost_gain >= 0``: then the field preset's Eq. (15),
     ``lut[bin] * (1 + boost_gain * row)`` (as :func:`boost`)."""
@@ -484,7 +510,8 @@ def _combine_row(s0, inv0, gamma, has_full, base, up, hbuf, tags, r, inv_n, lut,
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _emit_row(row, r, f, acc, pooled, out, lanes):  # pragma: no cover - jitted
+def _emit_row(row: F32, r: int, f: int, acc: F32, pooled: F32, out: F32,
+              lanes: F32) -> None:  # pragma: no cover
     """Row ``r`` of S into ``out`` (``f == 0``; ``lanes``: running per-column maxima) or into
     the ``f`` x ``f`` block means of ``pooled`` (``acc`` sums the rows of a block)."""
     w = row.shape[0]
@@ -512,8 +539,10 @@ def _emit_row(row, r, f, acc, pooled, out, lanes):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def combine(sm0, inv0, gamma, has_full, base, up, n_scales, lut, bgr, use_static, centre_row,
-            centre_col, use_centre, f, pooled, out):  # pragma: no cover - jitted
+def combine(sm0: F32, inv0: np.float32, gamma: float, has_full: bool, base: F32, up: Coeffs,
+            n_scales: int, lut: F32, bgr: U8, use_static: bool, centre_row: F32,
+            centre_col: F32, use_centre: bool, f: int, pooled: F32,
+            out: F32) -> np.float32:  # pragma: no cover
     """Eq. (14) and Eq. (15) in one pass over rows; returns the maximum of ``out``.
 
     ``S = lut[bin(bgr)] * centre * (f(sm0 * inv0) + sum_k ups[k]) / n_scales`` where
@@ -537,13 +566,16 @@ def combine(sm0, inv0, gamma, has_full, base, up, n_scales, lut, bgr, use_static
         _combine_row(sm0[r] if has_full else row, inv0, gamma, has_full, base, up, hbuf, tags,
                      r, inv_n, lut, bgr, use_static, centre_row, centre_col, use_centre, row)
         _emit_row(row, r, f, acc, pooled, out, lanes)
-    return lanes.max()
+    top: np.float32 = lanes.max()
+    return top
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def midbrain_combine(grey, g_delayed, g_prev, gain, radius, floor, o, gamma, base, up,
-                     n_scales, lut, bgr, use_static, centre_row, centre_col, use_centre, f, pooled,
-                     out, boost_gain=-1.0, grey_scale=1.0):  # pragma: no cover - jitted
+def midbrain_combine(grey: Grey, g_delayed: F32, g_prev: F32, gain: np.float32, radius: int,
+                     floor: float, o: F32, gamma: float, base: F32, up: Coeffs, n_scales: int,
+                     lut: F32, bgr: U8, use_static: bool, centre_row: F32, centre_col: F32,
+                     use_centre: bool, f: int, pooled: F32, out: F32, boost_gain: float = -1.0,
+                     grey_scale: float = 1.0) -> np.float32:  # pragma: no cover - jitted
     """The full-resolution scale's Eqs. (7)-(13) streamed row by row into Eqs. (14)-(15).
 
     Same results as :func:`midbrain_step_fused` then :func:`combine` (with ``inv0 = 1``), but
@@ -594,11 +626,12 @@ def midbrain_combine(grey, g_delayed, g_prev, gain, radius, floor, o, gamma, bas
         _combine_row(sm_row, one, gamma, True, base, up, hbuf, tags, r, inv_n, lut, bgr,
                      use_static, centre_row, centre_col, use_centre, row, boost_gain)
         _emit_row(row, r, f, acc, pooled, out, lanes)
-    return lanes.max()
+    top: np.float32 = lanes.max()
+    return top
 
 
 @njit(cache=True, nogil=True)
-def grey_half(grey8, half):  # pragma: no cover - jitted
+def grey_half(grey8: U8, half: F32) -> None:  # pragma: no cover - jitted
     """``half`` (H / 2, W / 2) = 2 x 2 block means of ``grey8 / 255`` in float32: what
     ``cv2.resize(grey8 * (1 / 255), INTER_AREA)`` gives (up to float rounding), without the
     full-resolution float plane."""
@@ -618,7 +651,8 @@ def grey_half(grey8, half):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True)
-def weighted_kmeans(x, w, centres, iters):  # pragma: no cover - jitted
+def weighted_kmeans(x: F64, w: F64, centres: F64,
+                    iters: int) -> NDArray[np.intp]:  # pragma: no cover
     """Same as :func:`.static.weighted_kmeans` (Lloyd iterations, empty clusters keep their
     centre); updates ``centres`` in place and returns the final labels."""
     n, d = x.shape
@@ -656,7 +690,7 @@ def weighted_kmeans(x, w, centres, iters):  # pragma: no cover - jitted
 
 
 @njit(cache=True, nogil=True)
-def nearest_centre(x, centres, out):  # pragma: no cover - jitted
+def nearest_centre(x: F64, centres: F64, out: NDArray[np.intp]) -> None:  # pragma: no cover
     """Index of the nearest centre of every row of ``x`` into ``out``."""
     for i in range(x.shape[0]):
         best = 0
@@ -672,7 +706,7 @@ def nearest_centre(x, centres, out):  # pragma: no cover - jitted
         out[i] = best
 
 
-def linear_coeffs(n_dst: int, n_src: int) -> tuple[np.ndarray, np.ndarray]:
+def linear_coeffs(n_dst: int, n_src: int) -> tuple[I64, F32]:
     """Source index and weight of each destination pixel of a bilinear resize along one axis,
     as OpenCV computes them (``fx = (d + 0.5) * n_src / n_dst - 0.5``, clamped at the borders)."""
     scale = 1.0 / (n_dst / n_src)
@@ -686,7 +720,8 @@ def linear_coeffs(n_dst: int, n_src: int) -> tuple[np.ndarray, np.ndarray]:
     return sx, fx
 
 
-def midbrain_step_fused(grey, g_delayed, g_prev, gain, radius_px, o_buf, sm_out, floor=0.0):
+def midbrain_step_fused(grey: F32, g_delayed: F32, g_prev: F32, gain: float, radius_px: int,
+                        o_buf: F32, sm_out: F32, floor: float = 0.0) -> float:
     """Fused equivalent of :func:`.midbrain_step.midbrain_step_numpy`, updating state in place.
 
     Parameters

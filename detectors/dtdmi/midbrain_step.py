@@ -19,8 +19,8 @@ References
 
 from __future__ import annotations
 
+import eaglemission.detectors.dtdmi.equations_dynamic as eq
 import numpy as np
-from eaglemission.detectors.dtdmi import equations as eq
 from numpy.typing import NDArray
 
 F32 = NDArray[np.float32]

@@ -18,8 +18,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+import eaglemission.detectors.dtdmi.equations_static as eq
 import numpy as np
-from eaglemission.detectors.dtdmi import equations as eq
 from numpy.typing import NDArray
 
 BITS = 4
@@ -48,20 +48,19 @@ def bin_features(colour_space: str, luminance_weight: float = 1.0) -> NDArray[np
     distances are chromatic only, so shading and shadows do not count as contrast).
     """
     if colour_space == "lalphabeta":
-        lms = eq.rgb_to_lms(eq.srgb_to_linear(_BIN_BGR[:, ::-1]))
-        lab = eq.lms_to_lalphabeta(lms)
+        lab = eq.lms_to_lalphabeta(eq.rgb_to_lms(eq.srgb_to_linear(_BIN_BGR[:, ::-1])))
         lab[:, 0] *= luminance_weight
-        return lab
-    lms = eq.rgb_to_lms(_BIN_BGR[:, ::-1])  # Eq. (1) wants R, G, B
+        return np.asarray(lab, np.float64)
+    lms = np.asarray(eq.rgb_to_lms(_BIN_BGR[:, ::-1]), np.float64)  # Eq. (1) wants R, G, B
     if colour_space == "log_lms":
-        return np.log10(np.maximum(lms, 1e-3))
+        return np.asarray(np.log10(np.maximum(lms, 1e-3)), np.float64)
     return lms
 
 
 def quantize_bgr(image: NDArray[np.uint8]) -> NDArray[np.uint16]:
     """(H, W) histogram bin index ``b >> 4 << 8 | g >> 4 << 4 | r >> 4`` of each pixel."""
     q = (image >> (8 - BITS)).astype(np.uint16)
-    return (q[:, :, 0] << (2 * BITS)) | (q[:, :, 1] << BITS) | q[:, :, 2]
+    return np.asarray((q[:, :, 0] << (2 * BITS)) | (q[:, :, 1] << BITS) | q[:, :, 2], np.uint16)
 
 
 def weighted_kmeans(
@@ -124,7 +123,7 @@ class ClusterStatic:
         self._lut = np.zeros(NBINS, np.intp)
         self._k = None
         if params.backend == "numba":
-            from eaglemission.detectors.dtdmi import kernels
+            import eaglemission.detectors.dtdmi.kernels as kernels
 
             self._k = kernels
         self.reset()
@@ -157,12 +156,8 @@ class ClusterStatic:
         sub = idx[::s, ::s].ravel()
         wgrid = self.weight_grid((idx.shape[0], idx.shape[1])).ravel()
         hist = np.bincount(sub, minlength=NBINS).astype(np.float64)
-        whist = np.bincount(sub, weights=wgrid, minlength=NBINS)
+        whist = np.asarray(np.bincount(sub, weights=wgrid, minlength=NBINS), np.float64)
         return hist, whist
-
-    def bin_saliency(self, idx: NDArray[np.uint16], timestamp_ns: int) -> NDArray[np.float32]:
-        """S_s of each of the 4096 colour bins for this frame (Eqs. (2)-(6))."""
-        return self.bin_saliency_from_hist(*self.histograms(idx), timestamp_ns)
 
     def _cluster_bins(self, hist: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64], int]:
         """Warm-started weighted k-means of the occupied colour bins (the clustering of
@@ -184,13 +179,16 @@ class ClusterStatic:
             lab = self._k.weighted_kmeans(np.ascontiguousarray(x), w, self._centres, iters)
         else:
             self._centres, lab = weighted_kmeans(x, w, self._centres, iters)
-        return occ, lab, np.bincount(lab, weights=n_occ, minlength=k), k
+        counts = np.asarray(np.bincount(lab, weights=n_occ, minlength=k), np.float64)
+        return occ, lab, counts, k
 
     def bin_saliency_from_hist(self, hist: NDArray[np.float64], whist: NDArray[np.float64],
                                timestamp_ns: int) -> NDArray[np.float32]:
         """S_s of each bin from the histograms of :meth:`histograms` (or the fused kernel)."""
         occ, lab, counts, k = self._cluster_bins(hist)
-        wsums = np.bincount(lab, weights=whist[occ], minlength=k)
+        wsums = np.asarray(np.bincount(lab, weights=whist[occ], minlength=k), np.float64)
+        centres = self._centres
+        assert centres is not None  # set by _cluster_bins
         # Eq. (5): the window of past frames, in seconds.
         self._window.append((timestamp_ns, wsums, counts))
         horizon = timestamp_ns - int(self.p.window_s * 1e9)
@@ -199,14 +197,14 @@ class ClusterStatic:
         lam_s = eq.normalize_cue(eq.spatial_cue_sequence(
             np.array([e[1] for e in self._window]), np.array([e[2] for e in self._window])))
         # Eq. (2) on the cluster colours, normalised the same way.
-        lam_c = eq.normalize_cue(eq.contrast_cue(self._centres, counts))
+        lam_c = eq.normalize_cue(eq.contrast_cue(centres, counts))
         s_cluster = eq.static_saliency(lam_s, lam_c)  # Eq. (6)
         # Nearest cluster of every bin (also the unoccupied ones: later frames may use them).
         if self._k is not None:
-            self._k.nearest_centre(self._features, self._centres, self._lut)
+            self._k.nearest_centre(self._features, centres, self._lut)
             lut = self._lut
         else:
-            d2 = ((self._features[:, None, :] - self._centres[None]) ** 2).sum(axis=2)
+            d2 = ((self._features[:, None, :] - centres[None]) ** 2).sum(axis=2)
             lut = np.argmin(d2, axis=1)
         return s_cluster[lut].astype(np.float32)
 
@@ -225,8 +223,8 @@ class ClusterStatic:
         r = rows.ravel().astype(np.float64)
         c = cols.ravel().astype(np.float64)
         hist = np.bincount(sub, minlength=NBINS).astype(np.float64)
-        mom = np.stack([np.bincount(sub, weights=v, minlength=NBINS)
-                        for v in (c, r, c * c, r * r)], axis=1)
+        mom = np.asarray(np.stack([np.bincount(sub, weights=v, minlength=NBINS)
+                                   for v in (c, r, c * c, r * r)], axis=1), np.float64)
         return hist, mom
 
     def bin_saliency_field(self, hist: NDArray[np.float64], mom: NDArray[np.float64],
@@ -240,13 +238,17 @@ class ClusterStatic:
         Eqs. (3)-(5); Eq. (6) is their product.
         """
         occ, lab, counts, k = self._cluster_bins(hist)
+        centres = self._centres
+        assert centres is not None  # set by _cluster_bins
         if self.p.contrast_level == "cluster":
-            d2 = ((self._features[:, None, :] - self._centres[None]) ** 2).sum(axis=2)
-            contrast = eq.contrast_cue(self._centres, counts)[np.argmin(d2, axis=1)]
+            d2 = ((self._features[:, None, :] - centres[None]) ** 2).sum(axis=2)
+            contrast = eq.contrast_cue(centres, counts)[np.argmin(d2, axis=1)]
         else:
-            contrast = eq.bin_contrast_cue(self._features, self._centres, counts)
+            contrast = eq.bin_contrast_cue(self._features, centres, counts)
         diag = float(np.hypot(*shape))
+        pooled_mom: NDArray[np.floating] = mom
+        pooled_hist: NDArray[np.floating] = hist
         if self.p.spread_pool:
-            mom, hist = eq.pool_colour_bins(mom), eq.pool_colour_bins(hist)
-        spatial = eq.distribution_cue(mom, hist, diag, self.p.spread_sigma_frac)
+            pooled_mom, pooled_hist = eq.pool_colour_bins(mom), eq.pool_colour_bins(hist)
+        spatial = eq.distribution_cue(pooled_mom, pooled_hist, diag, self.p.spread_sigma_frac)
         return eq.static_saliency(spatial, contrast).astype(np.float32)  # Eq. (6)

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from eaglemission.detectors.cli import UsageError, parse_detector_specs, parse_kv
+from eaglemission.detectors.cli_params import UsageError, parse_detector_specs, parse_kv
 
 from eaglemission.cli import main
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
 from eaglemission.detectors.dtdmi import equations as eq
-from eaglemission.detectors.dtdmi.detector import PRESETS, lab_features, resolve
+from eaglemission.detectors.dtdmi.config import PRESETS, resolve
+from eaglemission.detectors.dtdmi.maps import lab_features
 
 from eaglemission import registry
 from eaglemission.types import Frame

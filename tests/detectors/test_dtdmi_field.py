@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
 from eaglemission.detectors.dtdmi import equations as eq
-from eaglemission.detectors.dtdmi.detector import resolve
+from eaglemission.detectors.dtdmi.config import resolve
 from eaglemission.drivers.cameras.world import SyntheticWorld
 from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
 

@@ -70,7 +70,7 @@ def test_backends_agree_with_coarse_scales_upsampled_on_the_fly_or_not(scales, o
     b = DTDMIDetector(DTDMIConfig(preset="literal", scales=scales, backend="numba"))
     for f, _ in scene:
         np.testing.assert_allclose(b.saliency(f), a.saliency(f), atol=1e-5)
-    assert all(full is None for _, full in b.engine._up.values()) == on_the_fly
+    assert all(full is None for _, full in b.engine._up.cache.values()) == on_the_fly
 
 
 @pytest.mark.parametrize("params", [
