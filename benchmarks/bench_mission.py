@@ -21,7 +21,7 @@ import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
 from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
 from eaglemission.drivers.worlds.synthetic import world_config
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.perception import plausible_size, select_detection
 from eaglemission.missions.sim import run_simulation
 

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from eaglemission.drivers.cameras.world import SyntheticWorld
 from eaglemission.drivers.worlds.synthetic import world_config
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 
 from eaglemission.config import load_config
 from eaglemission.geometry import euler_to_quat

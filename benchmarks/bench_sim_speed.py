@@ -44,7 +44,7 @@ from eaglemission.estimators import correspondence as corr
 from eaglemission.estimators.rpnp import refine_pose
 from eaglemission.missions import runner as runner_mod
 from eaglemission.missions import silhouette as sil
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.sim import run_simulation
 
 from eaglemission.config import MissionFile, load_config

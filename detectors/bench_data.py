@@ -40,10 +40,6 @@ class BenchSequence:
     boxes: np.ndarray | None = field(default=None, compare=False)
 
     @property
-    def has_masks(self) -> bool:
-        return any(g is not None for g in self.gts)
-
-    @property
     def n_scored(self) -> int:
         if self.boxes is not None:
             return len(self.frames)

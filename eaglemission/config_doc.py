@@ -81,7 +81,8 @@ def _walk(lines: list[str], model: type[BaseModel], path: str, *, level: str = "
         if info.default is not PydanticUndefined:
             default = repr(info.default)
         elif info.default_factory is not None:
-            default = "(see below)" if _model_of(info.annotation) else repr(info.default_factory())  # type: ignore[call-arg]
+            default = "(see below)" if _model_of(info.annotation) \
+                else repr(info.get_default(call_default_factory=True, validated_data={}))
         else:
             default = "**required**"
         lines.append(f"| `{name}` | {_type_name(info.annotation)} | {default} | {_constraints(info)} |")

@@ -16,7 +16,7 @@ import math
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.guidance import Guidance
 from eaglemission.missions.log import MissionLog
 

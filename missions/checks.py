@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.guidance import grasp_position, standoff_position, yaw_towards_deg
 from pydantic import ValidationError
 

@@ -15,7 +15,7 @@ from eaglemission.geometry import quat_to_R, wrap_deg
 from eaglemission.types import XYZ, Quat, Setpoint
 
 if TYPE_CHECKING:
-    from eaglemission.missions.approach import ApproachConfig
+    from eaglemission.missions.approach_config import ApproachConfig
 
     from eaglemission.config import MissionFile
 

@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from eaglemission.missions.approach import ApproachConfig, MissionState
+from eaglemission.missions.approach import MissionState
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.evaluator import Evaluation, evaluate
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.result import MissionResult

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.target_state import (
     PlaneState,
     fit_std_m,

@@ -30,7 +30,6 @@ from eaglemission.missions import guidance as gd
 from eaglemission.missions.actuator import Actuator
 from eaglemission.missions.approach import (
     POLICIES,
-    ApproachConfig,
     ApproachMachine,
     Cameras,
     FinalAction,
@@ -41,6 +40,7 @@ from eaglemission.missions.approach import (
     failsafe,
     final_action,
 )
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.camera_pump import CameraPump
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import (

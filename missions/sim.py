@@ -14,7 +14,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.mission import ApproachOutcome
 
 from eaglemission import errors
@@ -82,7 +82,10 @@ def run_simulation(cfg: MissionFile, *, realtime: bool = False,
     if res.outcome is None:
         raise errors.EagleMissionError(f"the flight did not happen (exit {res.exit_code}): "
                                        f"{res.error}")
-    out: ApproachOutcome = res.outcome  # type: ignore[assignment]
+    out = res.outcome
+    if not isinstance(out, ApproachOutcome):
+        raise errors.EagleMissionError(f"the mission plugin returned {type(out).__name__}, "
+                                       "not the approach mission's outcome")
     if expected_action is not None:
         out.reevaluate(expected_action=expected_action)
     return out

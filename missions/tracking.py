@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass
 
 from eaglemission.missions import guidance as gd
-from eaglemission.missions.approach import ApproachConfig, StatePolicy
+from eaglemission.missions.approach import StatePolicy
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import FitHint, Measurement
 from eaglemission.missions.target_state import (

@@ -1,7 +1,7 @@
 """The DTDMI detector plugin (``dtdmi``): static cluster saliency x midbrain dynamic map.
 
 ``S = S_s x S_M`` (Eq. (15) of [1]) with S_s from :mod:`.static` (Eqs. (1)-(6)) and S_M from
-:mod:`.dynamic` (Eqs. (7)-(14)). Two presets:
+:mod:`.dynamic` (Eqs. (7)-(14)). Four presets:
 
 - ``literal``: the equations as printed (1/d^2 spatial cue, raw Eq. (13) maps averaged over
   scales by Eq. (14), map = S / max S). Reproduces the paper's method; near-binary maps.

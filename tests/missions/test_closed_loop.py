@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from eaglemission.drivers.worlds.synthetic import world_config
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import read_log
 from eaglemission.missions.sim import effective_vehicle_config, run_simulation
 from fault_harness import Fault, fly_with_faults

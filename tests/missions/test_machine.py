@@ -11,13 +11,13 @@ from eaglemission.missions.approach import (
     ACTIVE_STATES,
     TRANSITIONS,
     Abort,
-    ApproachConfig,
     ApproachMachine,
     MissionState,
     Snapshot,
     failsafe,
     mermaid_diagram,
 )
+from eaglemission.missions.approach_config import ApproachConfig
 from transitions import MachineError
 
 from eaglemission.config import load_config

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from eaglemission.estimators.top_plane import TopPlaneFitter
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.perception import Perception, Provenance, Request, Tools
 from eaglemission.missions.target_state import PlaneState
 from world_helpers import approach_pose, detection_from_polygon

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
-from eaglemission.missions.approach import ApproachConfig
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.runner import MissionRunner
 
