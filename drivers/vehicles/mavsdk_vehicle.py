@@ -361,6 +361,11 @@ class MavsdkVehicle:
         self._require("arm()")
         if self._c.armed and not self._c.in_air:
             await self._disarm_landed("arm()")
+        if not self._c.armed and self._c.mode == FlightMode.OFFBOARD:
+            # disarmed after an offboard flight, PX4 shows OFFBOARD again (the last mode the
+            # user selected, recorded b/f/g/i) and fails its arming checks without a setpoint
+            # stream ("No offboard signal"): select HOLD first (harmless on the ground)
+            await self.mode_command("arm()", self.plugins["Action"].hold, {FlightMode.HOLD})
         await self.bounded("arm()", self.plugins["Action"].arm)
         await self._confirm("arm()", lambda: self._c.armed, "armed")
 

@@ -174,6 +174,10 @@ async def px4_backend() -> AsyncIterator[Px4Backend]:
                 await vehicle.land()
             if vehicle.state().armed:
                 await vehicle.wait_landed_and_disarmed(land_timeout_s=90.0)
+            if vehicle.state().flight_mode == FlightMode.OFFBOARD:
+                # disarmed, PX4 shows OFFBOARD again (the last mode the user selected) and
+                # is not armable without a setpoint stream: leave it in Hold
+                await vehicle.hold()
         finally:
             await vehicle.close()
 
