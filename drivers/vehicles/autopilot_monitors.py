@@ -18,7 +18,13 @@ if TYPE_CHECKING:  # the autopilot owns its monitors; imported for the annotatio
 class LandDetector:
     """PX4's land detector as the vehicles report it: "Takeoff detected" above
     ``in_air_altitude_m`` off the ground, "Landing detected" after ``land_detect_s`` on it;
-    auto-disarm COM_DISARM_LAND after a landing, COM_DISARM_PRFLT after arming without a takeoff."""
+    auto-disarm COM_DISARM_LAND after a landing, COM_DISARM_PRFLT after arming without a takeoff.
+
+    As on PX4 v1.16 (Commander's ``_auto_disarm_landed`` hysteresis, recorded e): the
+    COM_DISARM_LAND timer starts at "Landing detected" and only "Takeoff detected" stops it;
+    an ARM command while armed changes nothing. A takeoff commanded in that window that is
+    not detected before the timer runs out is disarmed mid-takeoff (unless
+    ``auto_disarm_spares_climb``)."""
 
     def __init__(self, autopilot: Autopilot) -> None:
         self._ap = autopilot
@@ -27,6 +33,11 @@ class LandDetector:
         self._landed_ns: int | None = None
         self._flew_since_arm = False
         self._armed_ns = 0
+
+    @property
+    def armed_ns(self) -> int:
+        """When the vehicle was last armed (its motors spool up from then)."""
+        return self._armed_ns
 
     def on_arm(self, t: int) -> None:
         self._armed_ns = t
@@ -44,6 +55,7 @@ class LandDetector:
             self.in_air = True
             self._flew_since_arm = True
             self._ground_since_ns = None
+            self._landed_ns = None  # PX4: the COM_DISARM_LAND timer runs while "landed" only
             ap.status("Takeoff detected")
         if dyn.on_ground:
             if self._ground_since_ns is None:

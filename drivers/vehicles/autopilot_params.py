@@ -68,7 +68,8 @@ class AutopilotParams:
     cruise_speed_mps: float = 5.0  # [MPC_XY_CRUISE] goto, RTL return, mission legs
     takeoff_speed_mps: float = 1.5  # [MPC_TKO_SPEED] takeoff and the mission's first climb
     offboard_max_speed_mps: float = 10.0  # [MPC_XY_VEL_MAX] offboard position setpoints
-    takeoff_spoolup_s: float = 1.5  # on the ground only; sim 1.5 / emu 1.0 (recorded: ~1.8 s)
+    takeoff_spoolup_s: float = 1.5  # [COM_SPOOLUP_TIME] from arming; sim 1.5 / emu 1.0
+    # (recorded e: liftoff 4.2-4.4 s after arm + takeoff, 3.4-3.9 s when re-armed in LAND)
     takeoff_ramp_s: float = 3.0  # [MPC_TKO_RAMP_T] climb-rate limit ramp; sim 3 / emu 0
     takeoff_accept_below_m: float = 0.3  # TAKEOFF -> HOLD this far below; sim 0.3 / emu NAV_MC_ALT_RAD
     takeoff_accept_above_m: float = 0.3  # ... or above the altitude; sim 0.3 / emu inf
@@ -77,8 +78,9 @@ class AutopilotParams:
     auto_disarm_after_land_s: float = 2.0  # [COM_DISARM_LAND]
     auto_disarm_preflight_s: float | None = 10.0  # [COM_DISARM_PRFLT]; emu: detect + COM_DISARM_LAND
     preflight_disarm_text: str = "Disarmed by auto preflight disarming"  # emu "Disarmed by landing"
-    auto_disarm_spares_climb: bool = False  # emu True: no auto-disarm while climbing
-    # (TAKEOFF, a mission's first climb, an offboard setpoint above 0.3 m)
+    auto_disarm_spares_climb: bool = False  # True: no auto-disarm while climbing (TAKEOFF,
+    # a mission's first climb, an offboard setpoint above 0.3 m); PX4 and both vehicles: False
+    # (a takeoff not yet detected when COM_DISARM_LAND runs out is disarmed, as on PX4)
     disarm_restores_intended_mode: bool = False
     """After a disarm: sim False: HOLD; emu True (recorded b): the mode the user intended
     after a failsafe landing, HOLD after LAND / RTL / TAKEOFF, else unchanged."""

@@ -1,8 +1,9 @@
 """A PX4-like multicopter that speaks MAVLink 2, for testing the MAVSDK driver without PX4.
 
 It answers the way PX4 v1.16 answered MAVSDK 4.1 in the recorded SITL traffic
-(``../shared/data/px4_sitl_tlogs``): HEARTBEAT with PX4 custom modes at 1 Hz (and, by default,
-again on every change), COMMAND_ACK for every command (DO_SET_MODE acknowledged twice),
+(``../shared/data/px4_sitl_tlogs``): HEARTBEAT with PX4 custom modes at 1 Hz of emulator time
+and never on a change (so a mode change shows at the next HEARTBEAT, as on PX4; the config's
+``heartbeat_on_change`` restores the old instant reports), COMMAND_ACK for every command (DO_SET_MODE acknowledged twice),
 SYS_STATUS with sensor and pre-arm bits, HOME_POSITION, GLOBAL_POSITION_INT,
 LOCAL_POSITION_NED (relative to an EKF origin a few decimetres from home, as on PX4),
 ATTITUDE(+_QUATERNION), EXTENDED_SYS_STATE, BATTERY_STATUS, GPS_RAW_INT, CURRENT_MODE,
@@ -21,8 +22,8 @@ missions (:mod:`.emulator_missions`), streams (:mod:`.emulator_messages`), the l
 (:mod:`.emulator_link`).
 
 Time: ``speedup`` scales the emulator's simulated time (dynamics and its own timers: offboard
-loss, landing detection, auto-disarm, failsafes). Stream rates and HEARTBEAT stay in wall time
-because MAVSDK's timers do (it declares a link dead after 3 s without HEARTBEAT). Offboard
+loss, landing detection, auto-disarm, failsafes, and the HEARTBEAT period). The other stream
+rates stay in wall time because MAVSDK's timers do (it declares a link dead after 3 s without HEARTBEAT). Offboard
 setpoints arrive every 50 ms wall, i.e. every ``0.05 * speedup`` s of emulator time: keep that
 below COM_OF_LOSS_T (``speedup <= 10`` with the default 1 s).
 
@@ -173,7 +174,13 @@ class Px4Emulator:
         self.autopilot.offboard_signal_grace = self._recent_setpoint
         self.commands = CommandHandlers(self)
         self.missions = MissionProtocol(self)
-        self.streams = Streams({**PX4_ONBOARD_RATES_HZ, **cfg.stream_rates_hz})
+        rates = {**PX4_ONBOARD_RATES_HZ, **cfg.stream_rates_hz}
+        if not cfg.heartbeat_on_change:
+            # PX4's HEARTBEAT period is what delays every mode / arming report (recorded d:
+            # 1.005-1.048 s): it runs on the emulator's clock, so ``speedup`` times per wall
+            # second (MAVSDK's link timers only need >= 1 Hz of wall time).
+            rates["HEARTBEAT"] *= cfg.speedup
+        self.streams = Streams(rates)
         self._handlers: dict[str, Callable[[Any], None]] = {
             "COMMAND_LONG": self.commands.on_command_long,
             "COMMAND_INT": self.commands.on_command_int,
@@ -377,10 +384,14 @@ class Px4Emulator:
         if msg is not None:
             self.emit(msg)
 
+    def statustext_link_live(self) -> bool:
+        """A GCS HEARTBEAT arrived within 2.5 s (wall): STATUSTEXT goes out (PX4's rule)."""
+        return time.monotonic() - self._gcs_hb_wall <= 2.5
+
     def statustext(self, text: str, severity: int = M.MAV_SEVERITY_INFO) -> None:
         """STATUSTEXT as PX4 sends it: tab-terminated, split into 50-character chunks."""
         log.info("emulator: %s", text)
-        if time.monotonic() - self._gcs_hb_wall > 2.5:
+        if not self.statustext_link_live():
             return  # PX4 sends STATUSTEXT on a link only while a GCS heartbeat is fresh
         body = (text + "\t").encode()
         self._statustext_id = (self._statustext_id + 1) % 65536

@@ -6,6 +6,7 @@ anyone else ends our control."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import threading
 from typing import TYPE_CHECKING, Any
@@ -14,7 +15,7 @@ from eaglemission.drivers.vehicles.events import EVENT_MODE, EVENT_WATCHDOG
 from eaglemission.drivers.vehicles.mavsdk_support import step_towards
 from eaglemission.drivers.vehicles.watchdog import OffboardWatchdog
 
-from eaglemission.errors import ModeChangedExternally, VehicleError
+from eaglemission.errors import ModeChangedExternally, TimeoutError_, VehicleError
 from eaglemission.types import FlightMode, Setpoint
 
 if TYPE_CHECKING:  # the vehicle owns its offboard session; imported for the annotations only
@@ -68,16 +69,30 @@ class OffboardSession:
         await v.bounded("start_offboard()", lambda: ob.set_position_ned(self._local_setpoint(here)),
                         params=(initial,))
         self.active = True
-        self.watchdog.arm()
+        # PX4 confirms OFFBOARD only in its next 1 Hz HEARTBEAT (0.08-0.95 s after the ACCEPTED
+        # ack, recorded): the setpoint stream (the timer task, and MAVSDK's own re-sending) keeps
+        # running meanwhile, and the watchdog is armed for real once the mode is confirmed.
+        # Until then it only holds a backstop deadline past the bounded confirmation wait, so a
+        # loop blocked during the wait is still caught.
+        confirm_s = v.config.confirm_timeout_s if v.config.confirm_modes else 0.0
+        self.watchdog.arm(grace_s=confirm_s + v.config.command_timeout_s)
         if self.task is None or self.task.done():
             self.task = asyncio.get_running_loop().create_task(self._loop(), name="mavsdk-offboard")
         try:
             await v.mode_command("start_offboard()", ob.start, {FlightMode.OFFBOARD},
                                  params=(initial,))
+        except TimeoutError_:
+            # accepted, but no HEARTBEAT showed OFFBOARD: PX4 may still be in it. Stop MAVSDK's
+            # re-sending and ask for HOLD (bounded; refused when not in OFFBOARD: fine).
+            self.stop_streaming()
+            with contextlib.suppress(Exception):
+                await v.bounded("start_offboard()", ob.stop)
+            raise
         except BaseException:
             self.stop_streaming()
             raise
         self._confirmed = True
+        self.watchdog.arm()
 
     def set_goal(self, setpoint: Setpoint) -> None:
         ended = self._ended

@@ -80,8 +80,16 @@ class MavsdkVehicleConfig(BaseModel):
     samples arrive; it only feeds fake sensors and the evaluator."""
     ground_truth_rate_hz: Annotated[float, Field(gt=0, le=250)] = 50.0
     confirm_modes: bool = True
-    """After an accepted command, wait (bounded) until telemetry shows its mode/armed state
-    (PX4 sends HEARTBEAT at 1 Hz, so up to ~1 s)."""
+    """After an accepted command, wait (bounded by ``confirm_timeout_s``) until telemetry shows
+    its mode/armed state (PX4 sends HEARTBEAT at 1 Hz only, never on change: recorded, the new
+    mode shows 0.08-0.95 s after the ACCEPTED ack)."""
+    confirm_timeout_s: Annotated[float, Field(gt=0, le=60)] = 3.0
+    """How long an accepted mode / arming command may take to show in the HEARTBEAT (PX4: at
+    its next 1 Hz HEARTBEAT, <= 1.05 s recorded; 3 s leaves a lost HEARTBEAT's margin)."""
+    disarm_after_landing_timeout_s: Annotated[float, Field(gt=0, le=60)] = 5.0
+    """After touchdown is reported (``in_air`` False), how long to wait for PX4's own
+    auto-disarm (recorded: "Disarmed by landing" 2.02 s after "Landing detected"
+    (COM_DISARM_LAND 2 s), shown at the next HEARTBEAT) before disarming explicitly."""
 
 
 class MavlinkPeer(Protocol):

@@ -51,6 +51,7 @@ class TelemetryCache:
     armed: bool = False
     in_air: bool = False
     mode: FlightMode = FlightMode.UNKNOWN
+    mode_changes: int = 0  # flight-mode changes seen so far (a command's effect is a change)
     battery: float = math.nan
     voltage_v: float = math.nan
     local_ok: bool = False
@@ -172,6 +173,7 @@ class MavsdkTelemetry:
         if new == old:
             return
         self.cache.mode = new
+        self.cache.mode_changes += 1
         source = "command" if new in self.expected else "autopilot"
         if source == "command":
             self.expected = set()

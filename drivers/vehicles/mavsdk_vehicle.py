@@ -314,40 +314,113 @@ class MavsdkVehicle:
     # ------------------------------------------------------------------------------------------
     # commands
     # ------------------------------------------------------------------------------------------
-    async def _confirm(self, origin: str, predicate: Callable[[], bool], what: str) -> None:
-        """Wait (bounded) until telemetry shows the effect of an accepted command."""
+    async def _confirm(self, origin: str, predicate: Callable[[], bool], what: str,
+                       timeout_s: float | None = None) -> None:
+        """Wait (bounded) until telemetry shows the effect of an accepted command. PX4 reports
+        mode and arming only in its 1 Hz HEARTBEAT: up to ~1 s after the ACCEPTED ack."""
         if not self.config.confirm_modes:
             return
-        deadline = time.monotonic() + self.config.command_timeout_s
+        limit = self.config.confirm_timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + limit
         while not predicate():
             if time.monotonic() > deadline:
-                raise TimeoutError_(origin, self.config.command_timeout_s,
-                                    f"accepted, but telemetry never showed {what}")
+                raise TimeoutError_(origin, limit,
+                                    f"accepted, but telemetry never showed {what} within "
+                                    f"{limit:g} s (last: mode={self._c.mode.value} "
+                                    f"armed={self._c.armed} in_air={self._c.in_air})")
             await asyncio.sleep(0.02)
 
     async def mode_command(self, origin: str, fn: Callable[[], Any], modes: set[FlightMode],
                             params: Any = None, *, also_ok: frozenset[FlightMode] = frozenset()
                             ) -> None:
         """A command that changes the flight mode to one of ``modes`` (ours, not external);
-        ``also_ok`` are modes the autopilot may move on to by itself (TAKEOFF -> HOLD)."""
+        ``also_ok`` are modes the autopilot may move on to by itself (TAKEOFF -> HOLD); they
+        count only after a mode change reported since the command (PX4 reports modes in its
+        1 Hz HEARTBEAT: the HOLD shown before a takeoff is not the HOLD after it)."""
         self.telemetry.expected = set(modes)
+        changes0 = self._c.mode_changes
         await self.bounded(origin, fn, params=params)
         ok = modes | also_ok
-        await self._confirm(origin, lambda: self._c.mode in ok,
+
+        def shown() -> bool:
+            c = self._c
+            return c.mode in modes or (c.mode in also_ok and c.mode_changes > changes0)
+
+        await self._confirm(origin, shown,
                             "the flight mode " + "/".join(sorted(m.value for m in ok)))
 
     async def arm(self) -> None:
+        """Arm, and wait (bounded) until the HEARTBEAT shows it.
+
+        Already armed *on the ground* is not ready: PX4 disarms a landed vehicle by itself
+        (COM_DISARM_LAND 2 s after "Landing detected", COM_DISARM_PRFLT without a takeoff), and
+        an ARM command while armed changes nothing (PX4 answers ACCEPTED and keeps its
+        auto-disarm timer), so a takeoff started then is disarmed mid-climb unless PX4 detects
+        the takeoff first. The vehicle is disarmed explicitly (it is landed) and armed again.
+        Already armed in the air: nothing to do."""
         self._require("arm()")
+        if self._c.armed and not self._c.in_air:
+            await self._disarm_landed("arm()")
+        if not self._c.armed and self._c.mode == FlightMode.OFFBOARD:
+            # disarmed after an offboard flight, PX4 shows OFFBOARD again (the last mode the
+            # user selected, recorded b/f/g/i) and fails its arming checks without a setpoint
+            # stream ("No offboard signal"): select HOLD first (harmless on the ground)
+            await self.mode_command("arm()", self.plugins["Action"].hold, {FlightMode.HOLD})
         await self.bounded("arm()", self.plugins["Action"].arm)
         await self._confirm("arm()", lambda: self._c.armed, "armed")
+
+    async def _disarm_landed(self, origin: str) -> None:
+        """Armed and landed (``in_air`` False): disarm (PX4 accepts it on the ground) and wait
+        for the disarmed HEARTBEAT."""
+        log.info("%s: armed on the ground (mode %s): disarming first so that PX4's "
+                 "auto-disarm cannot hit the next takeoff", origin, self._c.mode.value)
+        self.event(EVENT_STATUS, f"{origin}: armed on the ground: disarm before arming again",
+                   {"mode": self._c.mode.value})
+        await self.bounded(origin, self.plugins["Action"].disarm)
+        await self._confirm(origin, lambda: not self._c.armed,
+                            "disarmed (explicit disarm of a landed vehicle before re-arming)")
 
     async def disarm(self) -> None:
         self._require("disarm()")
         await self.bounded("disarm()", self.plugins["Action"].disarm)
         await self._confirm("disarm()", lambda: not self._c.armed, "disarmed")
 
+    async def wait_landed_and_disarmed(self, land_timeout_s: float = 60.0) -> None:
+        """After :meth:`land` (or RTL): wait (bounded, ``land_timeout_s``) until touchdown is
+        reported (``in_air`` False), then up to ``disarm_after_landing_timeout_s`` for PX4's own
+        auto-disarm ("Landing detected" 3.2-6.9 s after touchdown, "Disarmed by landing" 2.02 s
+        later, recorded), then disarm explicitly if it is still armed. Returns disarmed; a
+        timeout names the stage it was in."""
+        self._require("wait_landed_and_disarmed()")
+        origin = "wait_landed_and_disarmed()"
+        c = self._c
+        deadline = time.monotonic() + land_timeout_s
+        while c.in_air:
+            if time.monotonic() > deadline:
+                raise TimeoutError_(origin, land_timeout_s,
+                                    f"still in the air after {land_timeout_s:g} s (mode="
+                                    f"{c.mode.value} armed={c.armed}): landing not detected")
+            await asyncio.sleep(0.05)
+        wait_s = self.config.disarm_after_landing_timeout_s
+        deadline = time.monotonic() + wait_s
+        while c.armed and not c.in_air and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        if c.in_air:
+            raise VehicleError("NOT_LANDED", origin, None,
+                               f"in the air again while waiting for the disarm (mode={c.mode.value})")
+        if c.armed:
+            log.info("%s: no auto-disarm within %.1f s of touchdown: disarming", origin, wait_s)
+            await self.bounded(origin, self.plugins["Action"].disarm)
+            await self._confirm(origin, lambda: not c.armed,
+                                f"disarmed (explicit disarm, no auto-disarm within {wait_s:g} s "
+                                "of touchdown)")
+
     async def takeoff(self, altitude_m: float) -> None:
-        """Take off to ``altitude_m`` above home (PX4 MIS_TAKEOFF_ALT); returns when accepted."""
+        """Take off to ``altitude_m`` above home (PX4 MIS_TAKEOFF_ALT); returns when accepted.
+
+        Armed on the ground right after a landing (mode LAND / RTL), the vehicle is disarmed
+        and armed again first (:meth:`arm`): PX4's auto-disarm would otherwise cut the motors
+        during the climb."""
         self._require("takeoff()")
         if not (math.isfinite(altitude_m) and altitude_m > 0):
             raise VehicleError("INVALID_ARGUMENT", "takeoff()", (altitude_m,),
@@ -357,6 +430,10 @@ class MavsdkVehicle:
                         {"command": "takeoff()", "result": "COMMAND_DENIED"})
             raise VehicleError("COMMAND_DENIED", "takeoff()", (altitude_m,),
                                "the vehicle is not armed: arm first")
+        if not self._c.in_air and self._c.mode in (FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH):
+            await self._disarm_landed("takeoff()")
+            await self.bounded("takeoff()", self.plugins["Action"].arm)
+            await self._confirm("takeoff()", lambda: self._c.armed, "armed (re-armed after a landing)")
         act = self.plugins["Action"]
         await self.bounded("takeoff()", lambda: act.set_takeoff_altitude(float(altitude_m)),
                             params=(altitude_m,))

@@ -78,8 +78,12 @@ class SimulatedVehicle(SimulatedModel):
         await self._command("arm")
         with self._lock:
             ap = self.autopilot
-            if ap.armed:
+            if ap.armed and (ap.in_air or not ap.dyn.on_ground):
                 return
+            if ap.armed:
+                # armed on the ground (after a landing): what the mavsdk driver does on PX4,
+                # whose auto-disarm would otherwise hit the next takeoff: disarm, arm again
+                ap.disarm("Disarmed by external command")
             reason = ap.not_armable_reason()
             if reason:
                 self._refuse("arm", "COMMAND_DENIED", f"Arming denied: {reason}")

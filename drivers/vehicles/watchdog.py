@@ -74,11 +74,13 @@ class OffboardWatchdog:
                 self._thread = None
 
     # -- use
-    def arm(self) -> None:
-        """Start watching (offboard started); counts as a fresh setpoint."""
+    def arm(self, grace_s: float = 0.0) -> None:
+        """Start watching (offboard started); counts as a fresh setpoint. ``grace_s`` moves
+        the first deadline later (``timeout_s + grace_s`` from now): a backstop while a mode
+        change is being confirmed, re-armed without grace once it is."""
         with self._lock:
             self._armed = True
-            self._last_feed = time.monotonic()
+            self._last_feed = time.monotonic() + max(0.0, float(grace_s))
 
     def disarm(self) -> None:
         """Stop watching (offboard stopped on purpose)."""
@@ -102,7 +104,7 @@ class OffboardWatchdog:
     def age_s(self) -> float:
         """Seconds since the last fresh setpoint."""
         with self._lock:
-            return time.monotonic() - self._last_feed
+            return max(0.0, time.monotonic() - self._last_feed)
 
     # -- thread
     def _run(self) -> None:

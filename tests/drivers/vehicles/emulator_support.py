@@ -43,6 +43,13 @@ async def flying_pair(speedup: float = 4.0, *, record: bool = False, emulator: d
     emu.start()
     try:
         await v.connect()
+        # as the recorded clients did (they waited for health, >= 1 s): PX4 has heard the
+        # client's GCS HEARTBEAT (it sends STATUSTEXT only then) and sent its first 1 Hz
+        # streams (MISSION_CURRENT) before the first command
+        await wait_for(lambda: emu.statustext_link_live(), 5.0, "a GCS HEARTBEAT from MAVSDK")
+        if record:
+            await wait_for(lambda: any(t.direction == "out" and t.msg.get_type() == "MISSION_CURRENT"
+                                       for t in list(emu.traffic)), 5.0, "first MISSION_CURRENT")
         yield emu, v, clock
     finally:
         await v.close()

@@ -46,9 +46,10 @@ class EmulatorBackend(BackendBase):
         self.emulator = emulator
         self.scaled = clock
         self.watchdog_timeout_s = vehicle.watchdog_timeout_s * clock.factor
-        # HEARTBEAT (and so the armed state and the mode) is sent on change by the emulator,
-        # but MAVSDK's in_air comes from EXTENDED_SYS_STATE at the requested rate.
-        self.report_lag_s = 0.5
+        # HEARTBEAT (and so the armed state and the mode) is sent at 1 Hz of emulator time
+        # only, as PX4 does (up to 1 clock second late); MAVSDK's in_air comes from
+        # EXTENDED_SYS_STATE at the requested rate.
+        self.report_lag_s = 1.5
 
     async def link_loss(self, duration_s: float) -> None:
         # Command timeouts are wall time (the driver's command_timeout_s, MAVSDK's ~2 s of
@@ -68,7 +69,6 @@ def make_emulator_backend(seed: int = 5) -> EmulatorBackend:
     # RTL_RETURN_ALT 10 m as in the recorded scenario (c) (PX4's default 60 m only makes the
     # return test slower)
     emu = Px4Emulator(EmulatorConfig(speedup=SPEEDUP, seed=seed,
-                                     stream_rates_hz={"HEARTBEAT": 2.0},
                                      params={"RTL_RETURN_ALT": 10.0}))
     vehicle = MavsdkVehicle(
         MavsdkVehicle.Config(url="raw://", connect_timeout_s=10.0, command_timeout_s=1.5,
@@ -96,11 +96,49 @@ class TestMavsdkEmulatorContract(VehicleContract):
 # ---------------------------------------------------------------------------------------------
 # Real PX4 SITL (run elsewhere: no PX4 build can be installed on the CI machines)
 # ---------------------------------------------------------------------------------------------
-class Px4Backend(BackendBase):
-    """A real PX4 v1.16 SITL: wall time, 1 Hz heartbeats (modes show up to ~1 s late),
-    no fault-injection hooks (a real autopilot cannot be told to lose its link)."""
+PX4_GCS_LINK = "udpin:0.0.0.0:14550"
+"""PX4 SITL's GCS link (QGroundControl's port): PX4 sends to 127.0.0.1:14550 from UDP 18570."""
 
-    hooks = frozenset({"block_event_loop"})
+_PX4_MODES = {FlightMode.HOLD: (4, 3), FlightMode.POSCTL: (3, 0),
+              FlightMode.RETURN_TO_LAUNCH: (4, 5), FlightMode.LAND: (4, 6)}
+"""DO_SET_MODE (main, sub) a ground station sends (recorded h2: 176 (129, 4, 3) for Hold)."""
+
+
+def gcs_set_mode(mode: FlightMode, url: str = PX4_GCS_LINK, timeout_s: float = 5.0) -> list[int]:
+    """A second ground station (pymavlink, sysid 255 / compid 190, as in recorded h1-h3) on
+    PX4's GCS link commands ``mode``; returns the COMMAND_ACK results PX4 sent on that link
+    (PX4 v1.16 answers DO_SET_MODE twice). Blocking: run it in a thread."""
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    main, sub = _PX4_MODES[mode]
+    conn = mavutil.mavlink_connection(url, source_system=255, source_component=190)
+    try:
+        deadline = time.monotonic() + timeout_s
+        if conn.wait_heartbeat(timeout=timeout_s) is None:  # learn PX4's address
+            raise AssertionError(f"no PX4 HEARTBEAT on the GCS link {url} within {timeout_s:g} s")
+        conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID,
+                                0, 0, mavutil.mavlink.MAV_STATE_ACTIVE)
+        conn.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0,
+                                   129, main, sub, 0, 0, 0, 0)
+        results: list[int] = []
+        while time.monotonic() < deadline and len(results) < 2:
+            msg = conn.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.2)
+            if msg is not None and msg.command == mavutil.mavlink.MAV_CMD_DO_SET_MODE:
+                results.append(int(msg.result))
+        if not results:
+            raise AssertionError(f"PX4 did not acknowledge DO_SET_MODE {mode.value} on {url}")
+        return results
+    finally:
+        conn.close()
+
+
+class Px4Backend(BackendBase):
+    """A real PX4 v1.16 SITL: wall time, 1 Hz heartbeats (modes show up to ~1 s late); a pilot's
+    mode change comes from a second ground station on PX4's GCS link (UDP 14550); no link-loss
+    hook yet (it needs a relay between PX4 and the driver)."""
+
+    hooks = frozenset({"block_event_loop", "pilot_mode_change"})
     report_lag_s = 1.5
 
     def __init__(self, vehicle: MavsdkVehicle, clock: ScaledClock) -> None:
@@ -110,6 +148,10 @@ class Px4Backend(BackendBase):
 
     async def block_event_loop(self, seconds: float) -> None:
         time.sleep(seconds)
+
+    async def pilot_mode_change(self, mode: FlightMode) -> None:
+        results = await asyncio.to_thread(gcs_set_mode, mode)
+        assert results[-1] == 0, f"PX4 refused {mode.value} from the GCS link: results {results}"
 
 
 @pytest.fixture
@@ -124,13 +166,18 @@ async def px4_backend() -> AsyncIterator[Px4Backend]:
     try:
         yield Px4Backend(vehicle, clock)
     finally:
-        try:  # leave the SITL on the ground for the next test
+        try:  # leave the SITL on the ground AND disarmed for the next test: armed in LAND,
+            # PX4 would auto-disarm it 2 s after "Landing detected", during the next takeoff
             s = vehicle.state()
-            if s.armed and s.in_air:
+            if s.armed and s.in_air and s.flight_mode not in (FlightMode.LAND,
+                                                               FlightMode.RETURN_TO_LAUNCH):
                 await vehicle.land()
-                deadline = time.monotonic() + 60.0
-                while vehicle.state().in_air and time.monotonic() < deadline:
-                    await asyncio.sleep(0.5)
+            if vehicle.state().armed:
+                await vehicle.wait_landed_and_disarmed(land_timeout_s=90.0)
+            if vehicle.state().flight_mode == FlightMode.OFFBOARD:
+                # disarmed, PX4 shows OFFBOARD again (the last mode the user selected) and
+                # is not armable without a setpoint stream: leave it in Hold
+                await vehicle.hold()
         finally:
             await vehicle.close()
 
