@@ -189,8 +189,7 @@ class Autopilot:
         # the motors spool up once after arming (COM_SPOOLUP_TIME): armed on the ground for
         # longer already (re-armed right after a landing, recorded e), the climb starts at once
         spool_end_ns = self.land_detector.armed_ns + int(round(self.params.takeoff_spoolup_s * 1e9))
-        go_ns = max(dyn.time_ns, spool_end_ns) if dyn.on_ground else dyn.time_ns
-        self._takeoff_go_ns = go_ns
+        self._takeoff_go_ns = max(dyn.time_ns, spool_end_ns) if dyn.on_ground else dyn.time_ns
         self._takeoff_climbing = False
         self._by_command()
         self.set_mode(FlightMode.TAKEOFF, "command")

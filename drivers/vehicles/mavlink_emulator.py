@@ -3,7 +3,8 @@
 It answers the way PX4 v1.16 answered MAVSDK 4.1 in the recorded SITL traffic
 (``../shared/data/px4_sitl_tlogs``): HEARTBEAT with PX4 custom modes at 1 Hz of emulator time
 and never on a change (so a mode change shows at the next HEARTBEAT, as on PX4; the config's
-``heartbeat_on_change`` restores the old instant reports), COMMAND_ACK for every command (DO_SET_MODE acknowledged twice),
+``heartbeat_on_change`` restores the old instant reports), COMMAND_ACK for every command
+(DO_SET_MODE acknowledged twice),
 SYS_STATUS with sensor and pre-arm bits, HOME_POSITION, GLOBAL_POSITION_INT,
 LOCAL_POSITION_NED (relative to an EKF origin a few decimetres from home, as on PX4),
 ATTITUDE(+_QUATERNION), EXTENDED_SYS_STATE, BATTERY_STATUS, GPS_RAW_INT, CURRENT_MODE,
@@ -23,7 +24,8 @@ missions (:mod:`.emulator_missions`), streams (:mod:`.emulator_messages`), the l
 
 Time: ``speedup`` scales the emulator's simulated time (dynamics and its own timers: offboard
 loss, landing detection, auto-disarm, failsafes, and the HEARTBEAT period). The other stream
-rates stay in wall time because MAVSDK's timers do (it declares a link dead after 3 s without HEARTBEAT). Offboard
+rates stay in wall time because MAVSDK's timers do (it declares a link dead after 3 s without
+HEARTBEAT). Offboard
 setpoints arrive every 50 ms wall, i.e. every ``0.05 * speedup`` s of emulator time: keep that
 below COM_OF_LOSS_T (``speedup <= 10`` with the default 1 s).
 
@@ -111,6 +113,16 @@ class _Reports:
         pass
 
 
+def stream_rates_hz(cfg: EmulatorConfig) -> dict[str, float]:
+    """Wall-time stream rates. PX4's HEARTBEAT period is what delays every mode / arming report
+    (recorded d: 1.005-1.048 s): it runs on the emulator's clock, so ``speedup`` times per wall
+    second (MAVSDK's link timers only need >= 1 Hz of wall time)."""
+    rates = {**PX4_ONBOARD_RATES_HZ, **cfg.stream_rates_hz}
+    if not cfg.heartbeat_on_change:
+        rates["HEARTBEAT"] *= cfg.speedup
+    return rates
+
+
 class Px4Emulator:
     """PX4-like multicopter over MAVLink 2. Use as a context manager or ``start()``/``stop()``.
 
@@ -174,13 +186,7 @@ class Px4Emulator:
         self.autopilot.offboard_signal_grace = self._recent_setpoint
         self.commands = CommandHandlers(self)
         self.missions = MissionProtocol(self)
-        rates = {**PX4_ONBOARD_RATES_HZ, **cfg.stream_rates_hz}
-        if not cfg.heartbeat_on_change:
-            # PX4's HEARTBEAT period is what delays every mode / arming report (recorded d:
-            # 1.005-1.048 s): it runs on the emulator's clock, so ``speedup`` times per wall
-            # second (MAVSDK's link timers only need >= 1 Hz of wall time).
-            rates["HEARTBEAT"] *= cfg.speedup
-        self.streams = Streams(rates)
+        self.streams = Streams(stream_rates_hz(cfg))
         self._handlers: dict[str, Callable[[Any], None]] = {
             "COMMAND_LONG": self.commands.on_command_long,
             "COMMAND_INT": self.commands.on_command_int,

@@ -43,7 +43,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-import json
 import logging
 import math
 import threading
@@ -52,13 +51,13 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from eaglemission.drivers.vehicles import mavsdk_arming
 from eaglemission.drivers.vehicles.events import (
     EVENT_GRIPPER,
     EVENT_LINK,
     EVENT_REFUSED,
     EVENT_STATUS,
 )
-from eaglemission.drivers.vehicles.hil_truth import MSG_ID as HIL_MSG_ID
 from eaglemission.drivers.vehicles.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.mavsdk_offboard import OffboardSession
 from eaglemission.drivers.vehicles.mavsdk_session import MavsdkSession
@@ -183,7 +182,7 @@ class MavsdkVehicle:
                                            self._now_ns, self.mavsdk["MavFlightMode"])
         self._offboard.watchdog.start()
         await self._request_rates()
-        await self._request_truth()
+        await mavsdk_arming.request_truth(self)
         await self.telemetry.wait_first(max(0.5, cfg.connect_timeout_s - (time.monotonic() - t0)))
         self.event(EVENT_LINK, f"connected to {cfg.url}", {"ok": True})
 
@@ -246,25 +245,6 @@ class MavsdkVehicle:
                 await self.bounded(f"set_rate_{name}()", setter)
             except VehicleError as exc:  # the autopilot may not honour it: telemetry still flows
                 log.warning("telemetry rate not set: %s", exc)
-
-    async def _request_truth(self) -> None:
-        """MAV_CMD_SET_MESSAGE_INTERVAL(HIL_STATE_QUATERNION): PX4 SIH streams its ground truth
-        only when asked; a refusal (a real aircraft) is not an error."""
-        if self._truth is None:
-            return
-        m = self.mavsdk
-        fields = {"target_system": 1, "target_component": 1, "command": 511,
-                  "confirmation": 0, "param1": float(HIL_MSG_ID),
-                  "param2": 1e6 / self.config.ground_truth_rate_hz, "param3": 0.0,
-                  "param4": 0.0, "param5": 0.0, "param6": 0.0, "param7": 0.0}
-        msg = m["MavlinkMessage"](message_name="COMMAND_LONG", system_id=0, component_id=0,
-                                  target_system_id=1, target_component_id=1,
-                                  fields_json=json.dumps(fields))
-        md = self.plugins["MavlinkDirect"]
-        try:
-            await self.bounded("request ground truth", lambda: md.send_command(msg))
-        except VehicleError as exc:
-            log.info("no ground-truth stream requested: %s", exc)
 
     def ground_truth(self) -> HilTruth | None:
         """Simulator ground truth (HIL_STATE_QUATERNION), None with ``ground_truth: off``;
@@ -350,35 +330,9 @@ class MavsdkVehicle:
                             "the flight mode " + "/".join(sorted(m.value for m in ok)))
 
     async def arm(self) -> None:
-        """Arm, and wait (bounded) until the HEARTBEAT shows it.
-
-        Already armed *on the ground* is not ready: PX4 disarms a landed vehicle by itself
-        (COM_DISARM_LAND 2 s after "Landing detected", COM_DISARM_PRFLT without a takeoff), and
-        an ARM command while armed changes nothing (PX4 answers ACCEPTED and keeps its
-        auto-disarm timer), so a takeoff started then is disarmed mid-climb unless PX4 detects
-        the takeoff first. The vehicle is disarmed explicitly (it is landed) and armed again.
-        Already armed in the air: nothing to do."""
-        self._require("arm()")
-        if self._c.armed and not self._c.in_air:
-            await self._disarm_landed("arm()")
-        if not self._c.armed and self._c.mode == FlightMode.OFFBOARD:
-            # disarmed after an offboard flight, PX4 shows OFFBOARD again (the last mode the
-            # user selected, recorded b/f/g/i) and fails its arming checks without a setpoint
-            # stream ("No offboard signal"): select HOLD first (harmless on the ground)
-            await self.mode_command("arm()", self.plugins["Action"].hold, {FlightMode.HOLD})
-        await self.bounded("arm()", self.plugins["Action"].arm)
-        await self._confirm("arm()", lambda: self._c.armed, "armed")
-
-    async def _disarm_landed(self, origin: str) -> None:
-        """Armed and landed (``in_air`` False): disarm (PX4 accepts it on the ground) and wait
-        for the disarmed HEARTBEAT."""
-        log.info("%s: armed on the ground (mode %s): disarming first so that PX4's "
-                 "auto-disarm cannot hit the next takeoff", origin, self._c.mode.value)
-        self.event(EVENT_STATUS, f"{origin}: armed on the ground: disarm before arming again",
-                   {"mode": self._c.mode.value})
-        await self.bounded(origin, self.plugins["Action"].disarm)
-        await self._confirm(origin, lambda: not self._c.armed,
-                            "disarmed (explicit disarm of a landed vehicle before re-arming)")
+        """Arm, and wait (bounded) until the HEARTBEAT shows it; armed on the ground is not
+        ready (PX4's auto-disarm): :func:`.mavsdk_arming.arm`."""
+        await mavsdk_arming.arm(self)
 
     async def disarm(self) -> None:
         self._require("disarm()")
@@ -386,34 +340,9 @@ class MavsdkVehicle:
         await self._confirm("disarm()", lambda: not self._c.armed, "disarmed")
 
     async def wait_landed_and_disarmed(self, land_timeout_s: float = 60.0) -> None:
-        """After :meth:`land` (or RTL): wait (bounded, ``land_timeout_s``) until touchdown is
-        reported (``in_air`` False), then up to ``disarm_after_landing_timeout_s`` for PX4's own
-        auto-disarm ("Landing detected" 3.2-6.9 s after touchdown, "Disarmed by landing" 2.02 s
-        later, recorded), then disarm explicitly if it is still armed. Returns disarmed; a
-        timeout names the stage it was in."""
-        self._require("wait_landed_and_disarmed()")
-        origin = "wait_landed_and_disarmed()"
-        c = self._c
-        deadline = time.monotonic() + land_timeout_s
-        while c.in_air:
-            if time.monotonic() > deadline:
-                raise TimeoutError_(origin, land_timeout_s,
-                                    f"still in the air after {land_timeout_s:g} s (mode="
-                                    f"{c.mode.value} armed={c.armed}): landing not detected")
-            await asyncio.sleep(0.05)
-        wait_s = self.config.disarm_after_landing_timeout_s
-        deadline = time.monotonic() + wait_s
-        while c.armed and not c.in_air and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
-        if c.in_air:
-            raise VehicleError("NOT_LANDED", origin, None,
-                               f"in the air again while waiting for the disarm (mode={c.mode.value})")
-        if c.armed:
-            log.info("%s: no auto-disarm within %.1f s of touchdown: disarming", origin, wait_s)
-            await self.bounded(origin, self.plugins["Action"].disarm)
-            await self._confirm(origin, lambda: not c.armed,
-                                f"disarmed (explicit disarm, no auto-disarm within {wait_s:g} s "
-                                "of touchdown)")
+        """After :meth:`land` (or RTL): touchdown, then PX4's auto-disarm, else an explicit
+        disarm; every stage bounded (:func:`.mavsdk_arming.wait_landed_and_disarmed`)."""
+        await mavsdk_arming.wait_landed_and_disarmed(self, land_timeout_s)
 
     async def takeoff(self, altitude_m: float) -> None:
         """Take off to ``altitude_m`` above home (PX4 MIS_TAKEOFF_ALT); returns when accepted.
@@ -431,9 +360,7 @@ class MavsdkVehicle:
             raise VehicleError("COMMAND_DENIED", "takeoff()", (altitude_m,),
                                "the vehicle is not armed: arm first")
         if not self._c.in_air and self._c.mode in (FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH):
-            await self._disarm_landed("takeoff()")
-            await self.bounded("takeoff()", self.plugins["Action"].arm)
-            await self._confirm("takeoff()", lambda: self._c.armed, "armed (re-armed after a landing)")
+            await mavsdk_arming.rearm_after_landing(self, "takeoff()")
         act = self.plugins["Action"]
         await self.bounded("takeoff()", lambda: act.set_takeoff_altitude(float(altitude_m)),
                             params=(altitude_m,))
