@@ -34,3 +34,9 @@ def package_versions() -> dict[str, str]:
         except PackageNotFoundError:
             pass
     return out
+
+
+def config_record(cfg: Any) -> dict[str, Any]:
+    """The fields of the mission log's ``config`` record."""
+    return {"config": config_dict(cfg), "sha256": config_sha256(cfg),
+            "versions": package_versions()}

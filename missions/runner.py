@@ -60,7 +60,7 @@ from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
 from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Tracker, Vehicle
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
-from eaglemission.provenance import config_dict, config_sha256, package_versions
+from eaglemission.provenance import config_record
 from eaglemission.safety import SafeVehicle
 from eaglemission.safety_geometry import inside_geofence
 from eaglemission.types import XYZ, FlightMode, Frame, VehicleState
@@ -104,8 +104,7 @@ class MissionRunner:
         self.tools = {c: Tools(detectors[c], coarse, fine, fitter, tracker) for c in cameras}
         self.clock, self.log = clock, mission_log
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
-        self.record_all = record_all
-        self.on_processed = on_processed
+        self.record_all, self.on_processed = record_all, on_processed or (lambda _frame: None)
         self.machine = ApproachMachine(on_change=self._on_state_change)
         self.perception = Perception(params, cfg.target)
         self.track = TargetTracking(cfg, params, self.models, mission_log)
@@ -275,8 +274,7 @@ class MissionRunner:
         cam_id = meas.camera_id
         self.perception_ms.append(meas.perception_ms)
         self._processed[cam_id] += 1
-        if self.on_processed is not None:
-            self.on_processed(meas.frame)
+        self.on_processed(meas.frame)
         det = meas.detection
         self.detection_frames.append((self._t_s(), cam_id, self.machine.state.value,
                                       meas.frame.seq, None if det is None else det.center_px))
@@ -434,8 +432,7 @@ class MissionRunner:
     async def run(self) -> MissionResult:
         self.log.write("start", config_state=self.machine.state.value,
                        params=self.p.model_dump(), cameras=list(self.cameras))
-        self.log.write("config", config=config_dict(self.cfg), sha256=config_sha256(self.cfg),
-                       versions=package_versions())
+        self.log.write("config", **config_record(self.cfg))
 
         async def stopper() -> None:
             await self.actuator.finished.wait()
