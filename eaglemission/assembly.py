@@ -254,6 +254,8 @@ class FlightOptions:
     prepare: Callable[[Assembly], None] | None = None
     """Called with the connected, open parts before the mission is built (test harnesses
     wrap parts here)."""
+    record: Any = None
+    """A :class:`~eaglemission.mcap_record.RecordOptions`: record the flight as MCAP."""
     truth_wait_s: float = 3.0
     """How long to wait, after connecting, for the first ground-truth sample."""
     camera_open_timeout_s: float = 20.0
@@ -271,6 +273,8 @@ class FlightResult:
     wall_s: float = 0.0
     sim_s: float = 0.0
     virtual: bool = False
+    recording: dict[str, Any] | None = None
+    """The MCAP recorder's counts (frames written and dropped, write errors, bytes)."""
 
 
 def exit_code_for(outcome: MissionOutcome | None, *, interrupted: bool) -> int:
@@ -462,8 +466,9 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                 return result
         if opt.prepare is not None:
             opt.prepare(asm)
+        recorder, hooks = _recorder(cfg, opt, asm, virtual)
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
-                                parts=asm.parts(realtime=not virtual), hooks=opt.hooks)
+                                parts=asm.parts(realtime=not virtual), hooks=hooks)
         interrupts.mission = mission
         interrupts.mission_task = task = asyncio.ensure_future(mission.run())
         try:
@@ -472,6 +477,9 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
             if interrupts.count == 0 or not task.cancelled():
                 raise
             result.error = "the mission did not end after the interrupt: cancelled"
+        finally:
+            if recorder is not None:
+                result.recording = recorder.close()
         result.interrupted = interrupts.count > 0
         result.exit_code = exit_code_for(result.outcome, interrupted=result.interrupted)
         if result.outcome is not None and result.outcome.final_state not in ("DONE",):
@@ -481,6 +489,24 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         await _close_all(asm, opened)
         result.wall_s = time.perf_counter() - wall0
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9
+
+
+def _recorder(cfg: MissionFile, opt: FlightOptions, asm: Assembly, virtual: bool
+              ) -> tuple[Any, MissionHooks]:
+    """The flight's MCAP recorder (``opt.record``) and the hooks that feed it."""
+    if opt.record is None:
+        return None, opt.hooks
+    import dataclasses
+    import json
+
+    from eaglemission.mcap_record import open_recorder
+    from eaglemission.provenance import config_sha256, package_versions
+
+    meta = {"config_sha256": config_sha256(cfg), "versions": json.dumps(package_versions()),
+            "clock": "virtual" if virtual else "wall"}
+    rec = open_recorder(opt.record, {c: cam.model for c, cam in asm.cameras.items()},
+                        virtual=virtual, t_ns=asm.clock.now_ns(), metadata=meta)
+    return rec, dataclasses.replace(opt.hooks, recorder=rec)
 
 
 class _Interrupts:

@@ -2,11 +2,14 @@
 
 Every record has ``kind``, ``t_s`` (mission clock, seconds; virtual in simulation),
 ``t_ns`` (host monotonic / virtual nanoseconds, docs/conventions.md) and ``wall_time`` (UTC,
-ISO 8601). Kinds: ``start``, ``state`` (state changes with reason), ``detection``,
-``estimate``, ``filter``, ``setpoint`` (with ``latency_ms`` when it follows a fresh estimate),
-``telemetry``, ``command``, ``event`` (vehicle / safety events), ``failsafe_params``, ``end``.
+ISO 8601). Kinds: ``start``, ``config`` (the mission file, its SHA-256, package versions),
+``state`` (state changes with reason), ``detection``, ``estimate``, ``filter``, ``setpoint``
+(requested and ``sent``: what the safety envelope passed on; ``latency_ms`` when it follows a
+fresh estimate), ``telemetry``, ``command``, ``event`` (vehicle / safety events: clamps and
+refusals; the recorder's problems), ``failsafe_params``, ``param_set``, ``end``.
 A crash loses nothing already written: each line is complete and flushed before ``write``
-returns.
+returns. Subscribers (:meth:`MissionLog.subscribe`: the MCAP recorder) get every record and
+its exact line: the JSON-lines file and the recording hold the same records.
 """
 
 from __future__ import annotations
@@ -68,6 +71,7 @@ class MissionLog:
         self.records: list[dict[str, Any]] = []
         self._lock = threading.Lock()
         self._fh: IO[str] | None = None
+        self._sinks: list[Callable[[dict[str, Any], str], None]] = []
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(self.path, "w", encoding="utf-8")  # noqa: SIM115 - closed in close()
@@ -86,7 +90,14 @@ class MissionLog:
                 self._fh.flush()
                 if self._fsync:
                     os.fsync(self._fh.fileno())
+        for sink in self._sinks:  # outside the lock: a sink may write a record itself
+            sink(record, line)
         return record
+
+    def subscribe(self, sink: Callable[[dict[str, Any], str], None]) -> None:
+        """Call ``sink(record, line)`` with every record from now on and the JSON line the
+        file gets (a flight recording: the log's records are its records)."""
+        self._sinks.append(sink)
 
     def of_kind(self, kind: str) -> list[dict[str, Any]]:
         return [r for r in self.records if r["kind"] == kind]

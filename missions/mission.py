@@ -154,6 +154,9 @@ class ApproachMission:
         cfg = p.config
         clock = p.clock
         mlog = MissionLog(h.log_path, now_ns=clock.now_ns, keep=h.keep_log)
+        if h.recorder is not None:
+            h.recorder.bind(mlog.write)
+            mlog.subscribe(h.recorder.record)
         estimated: list[tuple[int, tuple[float, float, float]]] = []
         reported: list[VehicleState] = []
 
@@ -174,6 +177,7 @@ class ApproachMission:
                                clock=clock, mission_log=mlog,
                                grasp_callback=h.grasp_callback, on_frame=h.on_frame,
                                on_telemetry=on_telemetry, record_all=h.record_all,
+                               on_processed=None if h.recorder is None else h.recorder.frame,
                                on_state=h.on_state)
         self.runner = runner
         if self._interrupt is not None:

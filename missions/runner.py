@@ -60,6 +60,7 @@ from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
 from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Tracker, Vehicle
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.provenance import config_record
 from eaglemission.safety import SafeVehicle
 from eaglemission.safety_geometry import inside_geofence
 from eaglemission.types import XYZ, FlightMode, Frame, VehicleState
@@ -81,6 +82,7 @@ class MissionRunner:
     clock : the mission clock; mission_log : JSON-lines log
     grasp_callback : awaited in GRASP_READY when ``mission.grasp_action == "callback"``
     on_frame : called (loop thread) with every grabbed frame (recording)
+    on_processed : called (loop thread) with every frame perception processed (MCAP)
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
     """
 
@@ -93,6 +95,7 @@ class MissionRunner:
                  on_frame: Callable[[Frame], None] | None = None,
                  on_telemetry: Callable[[VehicleState], None] | None = None,
                  record_all: bool = False,
+                 on_processed: Callable[[Frame], None] | None = None,
                  on_state: Callable[[float, str, str, str], None] | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
         self.vehicle: SafeVehicle = (vehicle if isinstance(vehicle, SafeVehicle)
@@ -101,7 +104,7 @@ class MissionRunner:
         self.tools = {c: Tools(detectors[c], coarse, fine, fitter, tracker) for c in cameras}
         self.clock, self.log = clock, mission_log
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
-        self.record_all = record_all
+        self.record_all, self.on_processed = record_all, on_processed or (lambda _frame: None)
         self.machine = ApproachMachine(on_change=self._on_state_change)
         self.perception = Perception(params, cfg.target)
         self.track = TargetTracking(cfg, params, self.models, mission_log)
@@ -271,6 +274,7 @@ class MissionRunner:
         cam_id = meas.camera_id
         self.perception_ms.append(meas.perception_ms)
         self._processed[cam_id] += 1
+        self.on_processed(meas.frame)
         det = meas.detection
         self.detection_frames.append((self._t_s(), cam_id, self.machine.state.value,
                                       meas.frame.seq, None if det is None else det.center_px))
@@ -403,6 +407,7 @@ class MissionRunner:
                 self.latencies_ms.append(latency)
                 self._fresh = None
             self.log.write("setpoint", state=self.machine.state.value, setpoint=sp,
+                           sent=self.vehicle.last_sent,
                            goal=step.goal_ned_m,
                            latency_ms=None if latency is None else round(latency, 3),
                            target=None if filt is None else filt.position_ned_m)
@@ -427,6 +432,7 @@ class MissionRunner:
     async def run(self) -> MissionResult:
         self.log.write("start", config_state=self.machine.state.value,
                        params=self.p.model_dump(), cameras=list(self.cameras))
+        self.log.write("config", **config_record(self.cfg))
 
         async def stopper() -> None:
             await self.actuator.finished.wait()

@@ -34,8 +34,12 @@ def _add(p: argparse.ArgumentParser) -> None:
                         "emulator (the mavsdk vehicle against `eaglemission sitl-vehicle` "
                         "started on a free port; real time)")
     p.add_argument("--plot", metavar="PNG", help="draw trajectory, target and state changes")
-    p.add_argument("--record", metavar="DIR", help="record both camera streams + telemetry "
-                                                   "(replay format: configs/replay.yaml)")
+    p.add_argument("--record", metavar="FILE.mcap|DIR",
+                   help="FILE.mcap: record the flight as MCAP (every processed frame, both "
+                        "calibrations, every log record: docs/recording.md); DIR: both camera "
+                        "streams + telemetry in the replay format (configs/replay.yaml)")
+    p.add_argument("--record-quality", metavar="Q", type=int, default=75,
+                   help="JPEG quality of the MCAP recording's images (1-100, default 75)")
     p.add_argument("--log", metavar="FILE", help="JSON-lines mission log (default: none)")
     p.add_argument("--realtime", action="store_true",
                    help="run at wall-clock speed even when everything could run in virtual time")
@@ -147,7 +151,19 @@ def _run(args: argparse.Namespace) -> int:
 
     recorder = None
     hooks_kw: dict[str, Any] = {}
-    if args.record:
+    record_mcap = None
+    if args.record and args.record.lower().endswith(".mcap"):
+        from eaglemission.mcap_record import RecordOptions
+
+        if Path(args.record).exists():
+            _print(err, f"error: --record {args.record}: exists (recordings are never "
+                        "overwritten): choose a new name")
+            return assembly.EXIT_CONFIG
+        if not 1 <= args.record_quality <= 100:
+            _print(err, "error: --record-quality: 1..100")
+            return assembly.EXIT_CONFIG
+        record_mcap = RecordOptions(Path(args.record), jpeg_quality=args.record_quality)
+    elif args.record:
         from eaglemission.recording import RunRecorder
 
         try:
@@ -172,7 +188,7 @@ def _run(args: argparse.Namespace) -> int:
         realtime=args.realtime, dry_run=args.dry_run,
         confirm=None if (args.yes or args.vehicle == "emulator") else _confirm,
         handle_signals=True, on_header=on_header, on_line=lambda s: _print(console, s),
-        prepare=prepare,
+        prepare=prepare, record=record_mcap,
         hooks=MissionHooks(log_path=Path(args.log) if args.log else None, on_state=on_state,
                            **hooks_kw))
     tmp = None
@@ -205,6 +221,13 @@ def _run(args: argparse.Namespace) -> int:
         _print(console, f"log written to {args.log}")
     if args.record and recorder is not None:
         _print(console, f"recording written to {args.record} ({recorder.stats})")
+    if result.recording is not None:
+        r = result.recording
+        what = (f"recording written to {args.record}: {r['frames_written']} frames, "
+                f"{r['records_written']} log records, {r['bytes'] / 1e6:.1f} MB, "
+                f"{r['frames_dropped']} frames dropped, {r['write_errors']} write errors")
+        _print(err if r["write_errors"] else console,
+               what + (f" ({r['error']})" if r["error"] else ""))
     if result.error:
         _print(err, f"error: {result.error}")
     _print(console, f"exit {result.exit_code} ({EXIT_NAMES.get(result.exit_code, '?')}) after "

@@ -4,12 +4,18 @@ from eaglemission.interfaces.camera import Camera
 from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import CameraView, Estimator
 from eaglemission.interfaces.fitter import PlaneFitter
-from eaglemission.interfaces.mission import FlightParts, Mission, MissionHooks, MissionOutcome
+from eaglemission.interfaces.mission import (
+    FlightParts,
+    FlightRecorder,
+    Mission,
+    MissionHooks,
+    MissionOutcome,
+)
 from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 from eaglemission.interfaces.world import World
 
-__all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "GroundTruth",
+__all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "FlightRecorder", "GroundTruth",
            "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter", "Tracker", "Vehicle",
            "World"]

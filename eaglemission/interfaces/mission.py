@@ -44,6 +44,24 @@ class FlightParts:
     realtime: bool = False
 
 
+@runtime_checkable
+class FlightRecorder(Protocol):
+    """Where a mission sends what it logged and what it saw (a flight recording).
+
+    ``bind`` is called once with the mission log's ``write(kind, **fields)``, so the recorder
+    reports its own problems (write errors, dropped frames) in the log; ``record`` with every
+    record the log gets and the exact JSON line written to the ``--log`` file (one source of
+    truth); ``frame`` with every frame the mission processed, on the loop thread. None of
+    them may block for long or raise: a recording never stops a mission.
+    """
+
+    def bind(self, write: Callable[..., Any]) -> None: ...
+
+    def record(self, record: Mapping[str, Any], line: str) -> None: ...
+
+    def frame(self, frame: Any) -> None: ...
+
+
 @dataclass(frozen=True)
 class MissionHooks:
     """Optional observers a caller (CLI, campaign, tests) gives a mission."""
@@ -57,6 +75,9 @@ class MissionHooks:
     """Called with every grabbed frame (recording)."""
     on_telemetry: Callable[[Any], None] | None = None
     """Called with every telemetry snapshot the mission reads (recording)."""
+    recorder: FlightRecorder | None = None
+    """Gets every mission-log record and every processed frame (``run --record FILE.mcap``:
+    :class:`eaglemission.mcap_record.McapRecorder`, opened by the assembly)."""
     record_all: bool = False
     """Grab both cameras whenever airborne (so a recording has both streams)."""
     grasp_callback: Callable[[], Any] | None = None

@@ -1,0 +1,412 @@
+"""MCAP flight recordings (``eaglemission run --record FILE.mcap``; docs/recording.md).
+
+:class:`McapRecorder` is the :class:`~eaglemission.interfaces.FlightRecorder` the assembly
+opens for a flight (:func:`open_recorder`). It writes, on its own thread:
+
+* ``/camera/<id>/image``: every frame the mission processed, ``foxglove.CompressedImage``
+  (protobuf, JPEG at ``jpeg_quality``), encoded here, off the event loop;
+* ``/camera/<id>/frame``: its companion (JSON): camera id, seq, ``timestamp_ns`` (mid-exposure
+  on the mission clock), ``host_time_ns`` (host UTC when the mission processed it), exposure;
+* ``/camera/<id>/calibration``: ``foxglove.CameraCalibration`` (protobuf) and
+  ``/camera/<id>/model`` (JSON: the full camera model, mount included), once at the start;
+* ``/log/<kind>``: every mission-log record, the very JSON line the ``--log`` file gets, on a
+  topic per ``kind`` with a JSON schema;
+* ``/recorder/stats`` (JSON): the recorder's own counts, at the end.
+
+Log time is the mission clock (virtual in simulation); publish time is the host's UTC time.
+Crash safety: a chunk is closed and the file flushed after every ``chunk_s`` of mission time
+(or of host time), and after ``chunk_bytes``; ``eaglemission log --recover`` rebuilds a file
+cut short. Write errors never reach the mission: the recording stops, the error is counted and
+reported in the mission log (an ``event`` record with ``source: recorder``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any, Literal
+
+import cv2
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from google.protobuf import descriptor_pb2
+from mcap.writer import CompressionType, Writer
+
+from eaglemission.geometry import CameraModel
+from eaglemission.recording import model_to_json
+from eaglemission.types import Frame
+
+log = logging.getLogger(__name__)
+
+TOPIC_IMAGE = "/camera/{}/image"
+TOPIC_FRAME = "/camera/{}/frame"
+TOPIC_CALIBRATION = "/camera/{}/calibration"
+TOPIC_MODEL = "/camera/{}/model"
+TOPIC_LOG = "/log/{}"
+TOPIC_STATS = "/recorder/stats"
+LOG_SCHEMA = "eaglemission.log.{}"
+PROFILE = ""  # no ROS profile: protobuf and JSON channels
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """How ``run --record FILE.mcap`` records (``FlightOptions.record``)."""
+
+    path: Path
+    jpeg_quality: int = 75
+    queue_frames: int = 32
+    """Frames waiting for the encoder; in real time a frame beyond them is dropped (counted),
+    in virtual time the mission waits for room (nothing is dropped)."""
+    chunk_s: float = 1.0
+    """A chunk is closed (and the file flushed) at least this often, in mission time."""
+    chunk_bytes: int = 4 << 20
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+
+
+def file_descriptor_set(cls: Any) -> bytes:
+    """The protobuf schema of a message class as MCAP wants it (a FileDescriptorSet)."""
+    fds = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: Any) -> None:
+        for dep in fd.dependencies:
+            if dep.name not in seen:
+                seen.add(dep.name)
+                add(dep)
+        fd.CopyToProto(fds.file.add())
+
+    add(cls.DESCRIPTOR.file)
+    return bytes(fds.SerializeToString())
+
+
+def log_json_schema(kind: str) -> bytes:
+    schema = {"title": f"eaglemission mission-log record {kind!r} (missions/log.py)",
+              "type": "object",
+              "properties": {"kind": {"const": kind}, "t_s": {"type": "number"},
+                             "t_ns": {"type": "integer"}, "wall_time": {"type": "string"}},
+              "required": ["kind", "t_s", "t_ns"], "additionalProperties": True}
+    return json.dumps(schema).encode()
+
+
+_OBJECT_SCHEMA = json.dumps({"type": "object", "additionalProperties": True}).encode()
+
+
+def calibration_message(model: CameraModel, camera_id: str, t_ns: int) -> CameraCalibration:
+    K = np.asarray(model.K, dtype=np.float64)
+    d = [float(v) for v in model.distortion]
+    dist_model = "rational_polynomial" if len(d) > 5 else "plumb_bob"
+    d += [0.0] * ((8 if len(d) > 5 else 5) - len(d))
+    msg = CameraCalibration(frame_id=camera_id, width=int(model.width_px),
+                            height=int(model.height_px), distortion_model=dist_model, D=d,
+                            K=[float(v) for v in K.ravel()],
+                            R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                            P=[K[0, 0], K[0, 1], K[0, 2], 0.0, K[1, 0], K[1, 1], K[1, 2], 0.0,
+                               0.0, 0.0, 1.0, 0.0])
+    msg.timestamp.FromNanoseconds(int(t_ns))
+    return msg
+
+
+class McapRecorder:
+    """Record one flight into an MCAP file (see the module docstring).
+
+    Parameters
+    ----------
+    path : the file (overwritten); ``stream``: write there instead (tests)
+    when_full : ``"drop"`` (real time: never block the mission) or ``"wait"`` (virtual time:
+        the mission waits for the encoder, so every processed frame is recorded)
+    metadata : string pairs for the file's ``eaglemission`` metadata record
+    """
+
+    def __init__(self, path: str | Path | None, *, jpeg_quality: int = 75,
+                 queue_frames: int = 32, when_full: Literal["drop", "wait"] = "drop",
+                 chunk_s: float = 1.0, chunk_bytes: int = 4 << 20,
+                 compression: str = "zstd", metadata: Mapping[str, str] | None = None,
+                 stream: IO[bytes] | None = None) -> None:
+        if when_full not in ("drop", "wait"):
+            raise ValueError(f"when_full: 'drop' or 'wait', got {when_full!r}")
+        if not 1 <= int(jpeg_quality) <= 100:
+            raise ValueError(f"jpeg_quality: 1..100, got {jpeg_quality}")
+        self.path = None if path is None else Path(path)
+        self.jpeg_quality = int(jpeg_quality)
+        self.when_full = when_full
+        self.chunk_ns = int(chunk_s * 1e9)
+        self.chunk_s = float(chunk_s)
+        self.chunk_bytes = int(chunk_bytes)
+        self.compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                            "none": CompressionType.NONE}[compression]
+        self.metadata = dict(metadata or {})
+        self.stats: dict[str, Any] = {
+            "frames_written": 0, "frames_dropped": 0, "records_written": 0,
+            "records_dropped": 0, "messages_lost": 0, "write_errors": 0, "chunks": 0,
+            "bytes": 0, "error": ""}
+        self._stream = stream
+        self._fh: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue()
+        self._frame_slots = threading.Semaphore(max(1, int(queue_frames)))
+        self._records_pending = 0
+        self._max_records = 100_000
+        self._lock = threading.Lock()
+        self._unreported: list[str] = []
+        self._log_write: Callable[..., Any] | None = None
+        self._reporting = False
+        self._closed = False
+        self._chunk_t0: int | None = None
+        self._t_max = 0
+        self._chunk_size = 0
+        self._last_flush = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="mcap-recorder", daemon=True)
+        self._thread.start()
+
+    # -- the mission's side (any thread; never blocks long, never raises) ----------------------
+    def bind(self, write: Callable[..., Any]) -> None:
+        self._log_write = write
+        self._report()
+
+    def record(self, record: Mapping[str, Any], line: str) -> None:
+        if self._closed:
+            return
+        with self._lock:
+            if self._records_pending >= self._max_records:
+                self.stats["records_dropped"] += 1
+                return
+            self._records_pending += 1
+        self._queue.put(("record", str(record.get("kind", "unknown")), int(record["t_ns"]),
+                         time.time_ns(), line))
+        self._report()
+
+    def frame(self, frame: Frame) -> None:
+        if self._closed:
+            return
+        if not self._frame_slots.acquire(blocking=self.when_full == "wait", timeout=(
+                60.0 if self.when_full == "wait" else None)):
+            with self._lock:
+                self.stats["frames_dropped"] += 1
+                n = self.stats["frames_dropped"]
+            if n in (1, 10, 100, 1000) or n % 10_000 == 0:
+                self._problem(f"dropped {n} frame(s) so far (the encoder is behind; last: "
+                              f"{frame.camera_id} seq {frame.seq})")
+            self._report()
+            return
+        self._queue.put(("frame", frame, time.time_ns()))
+        self._report()
+
+    def calibration(self, camera_id: str, model: CameraModel, t_ns: int) -> None:
+        """Both messages describing a camera (``/camera/<id>/calibration`` and ``/model``)."""
+        if not self._closed:
+            self._queue.put(("calibration", camera_id, model, int(t_ns), time.time_ns()))
+
+    def close(self, timeout_s: float = 60.0) -> dict[str, Any]:
+        """Write what is queued, the stats message and the footer; the final stats."""
+        if not self._closed:
+            self._closed = True
+            self._queue.put(None)
+            self._thread.join(timeout=timeout_s)
+            if self._thread.is_alive():
+                log.warning("recorder: still writing after %.0f s; the file may lack its "
+                            "footer (eaglemission log --recover)", timeout_s)
+        return dict(self.stats)
+
+    def _problem(self, text: str) -> None:
+        log.warning("recorder: %s", text)
+        with self._lock:
+            self._unreported.append(text)
+
+    def _report(self) -> None:
+        """Write pending problems as ``event`` records (on the caller's thread)."""
+        if self._log_write is None or self._reporting or not self._unreported:
+            return
+        self._reporting = True
+        try:
+            with self._lock:
+                texts, self._unreported = self._unreported, []
+            for text in texts:
+                self._log_write("event", source="recorder", text=text,
+                                recorder={k: v for k, v in self.stats.items() if k != "error"})
+        except Exception:  # noqa: BLE001 - reporting must not stop a mission either
+            log.exception("recorder: cannot report to the mission log")
+        finally:
+            self._reporting = False
+
+    # -- the writer thread --------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            self._open()
+        except Exception as exc:  # noqa: BLE001 - an unwritable path must not stop a flight
+            self._fail(f"cannot create {self.path}: {exc}")
+        while True:
+            try:
+                item = self._queue.get(timeout=self.chunk_s)
+            except queue.Empty:
+                self._flush_if_due(idle=True)
+                continue
+            if item is None:
+                break
+            self._handle(item)
+        self._finish()
+
+    def _handle(self, item: tuple[Any, ...]) -> None:
+        kind = item[0]
+        try:
+            if kind == "frame":
+                self._write_frame(item[1], item[2])
+            elif kind == "record":
+                self._write(TOPIC_LOG.format(item[1]), LOG_SCHEMA.format(item[1]), "jsonschema",
+                            log_json_schema(item[1]), "json", item[2], item[3],
+                            item[4].encode("utf-8"))
+                if self._writer is not None:
+                    self.stats["records_written"] += 1
+            elif kind == "calibration":
+                _, cid, model, t_ns, host_ns = item
+                msg = calibration_message(model, cid, t_ns)
+                self._write(TOPIC_CALIBRATION.format(cid), "foxglove.CameraCalibration",
+                            "protobuf", file_descriptor_set(CameraCalibration), "protobuf",
+                            t_ns, host_ns, msg.SerializeToString())
+                self._write(TOPIC_MODEL.format(cid), "eaglemission.CameraModel", "jsonschema",
+                            _OBJECT_SCHEMA, "json", t_ns, host_ns,
+                            json.dumps(model_to_json(model)).encode())
+        except Exception as exc:  # noqa: BLE001 - disk full, I/O error: count, report, stop
+            self._fail(f"write failed: {type(exc).__name__}: {exc}")
+        finally:
+            if kind == "frame":
+                self._frame_slots.release()
+            elif kind == "record":
+                with self._lock:
+                    self._records_pending -= 1
+        self._flush_if_due()
+
+    def _open(self) -> None:
+        if self._stream is not None:
+            self._fh = self._stream
+        else:
+            assert self.path is not None
+            self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in _finish / _fail
+        w = Writer(self._fh, chunk_size=1 << 30, compression=self.compression)
+        w.start(profile=PROFILE, library="eaglemission")
+        if self.metadata:
+            w.add_metadata("eaglemission", {str(k): str(v) for k, v in self.metadata.items()})
+        self._writer = w
+        self._fh.flush()
+
+    def _write_frame(self, frame: Frame, host_ns: int) -> None:
+        if self._writer is None:
+            self.stats["messages_lost"] += 2
+            return
+        t0 = time.perf_counter()
+        ok, buf = cv2.imencode(".jpg", frame.image, [cv2.IMWRITE_JPEG_QUALITY,
+                                                     self.jpeg_quality])
+        if not ok:
+            raise OSError(f"cannot encode frame {frame.seq} of {frame.camera_id!r} as JPEG")
+        encode_ms = (time.perf_counter() - t0) * 1e3
+        data = buf.tobytes()
+        img = CompressedImage(frame_id=frame.camera_id, data=data, format="jpeg")
+        img.timestamp.FromNanoseconds(int(frame.timestamp_ns))
+        cid = frame.camera_id
+        self._write(TOPIC_IMAGE.format(cid), "foxglove.CompressedImage", "protobuf",
+                    file_descriptor_set(CompressedImage), "protobuf", frame.timestamp_ns,
+                    host_ns, img.SerializeToString(), sequence=frame.seq)
+        meta = {"camera_id": cid, "seq": int(frame.seq), "timestamp_ns": int(frame.timestamp_ns),
+                "host_time_ns": int(host_ns), "exposure_s": float(frame.exposure_s),
+                "width_px": frame.width_px, "height_px": frame.height_px,
+                "jpeg_quality": self.jpeg_quality, "jpeg_bytes": len(data),
+                "encode_ms": round(encode_ms, 3)}
+        self._write(TOPIC_FRAME.format(cid), "eaglemission.FrameInfo", "jsonschema",
+                    _OBJECT_SCHEMA, "json", frame.timestamp_ns, host_ns,
+                    json.dumps(meta).encode(), sequence=frame.seq)
+        if self._writer is not None:
+            self.stats["frames_written"] += 1
+
+    def _write(self, topic: str, schema_name: str, schema_encoding: str, schema: bytes,
+               message_encoding: str, log_ns: int, publish_ns: int, data: bytes, *,
+               sequence: int = 0) -> None:
+        w = self._writer
+        if w is None:
+            self.stats["messages_lost"] += 1
+            return
+        cid = self._channels.get(topic)
+        if cid is None:
+            sid = self._schemas.get(schema_name)
+            if sid is None:
+                sid = self._schemas[schema_name] = w.register_schema(schema_name,
+                                                                     schema_encoding, schema)
+            cid = self._channels[topic] = w.register_channel(topic, message_encoding, sid)
+        w.add_message(cid, log_time=int(log_ns), data=data, publish_time=int(publish_ns),
+                      sequence=int(sequence) & 0xFFFFFFFF)
+        if self._chunk_t0 is None:
+            self._chunk_t0 = int(log_ns)
+        self._t_max = max(self._t_max, int(log_ns))
+        self._chunk_size += len(data)
+
+    def _flush_if_due(self, *, idle: bool = False) -> None:
+        if self._writer is None or self._chunk_t0 is None:
+            return
+        due = (self._chunk_size >= self.chunk_bytes
+               or self._t_max - self._chunk_t0 >= self.chunk_ns
+               or time.monotonic() - self._last_flush >= self.chunk_s or idle)
+        if not due:
+            return
+        try:
+            self._writer.flush()  # closes the chunk, writes its indexes, flushes the stream
+            self.stats["chunks"] += 1
+            if self._fh is not None:
+                self.stats["bytes"] = self._fh.tell()
+        except Exception as exc:  # noqa: BLE001
+            self._fail(f"write failed: {type(exc).__name__}: {exc}")
+        self._chunk_t0, self._chunk_size = None, 0
+        self._last_flush = time.monotonic()
+
+    def _fail(self, text: str) -> None:
+        self.stats["write_errors"] += 1
+        if not self.stats["error"]:
+            self.stats["error"] = text
+        self._writer = None
+        fh, self._fh = self._fh, None
+        if fh is not None and self._stream is None:
+            try:
+                fh.close()
+            except Exception:  # noqa: BLE001 - the disk is already failing
+                pass
+        self._problem(f"recording stopped: {text} (the file keeps what was written before; "
+                      "eaglemission log --recover FILE rebuilds it)")
+
+    def _finish(self) -> None:
+        w = self._writer
+        if w is None:
+            return
+        try:
+            stats = {k: v for k, v in self.stats.items() if k != "bytes"}
+            self._write(TOPIC_STATS, "eaglemission.RecorderStats", "jsonschema", _OBJECT_SCHEMA,
+                        "json", self._t_max, time.time_ns(), json.dumps(stats).encode())
+            w.finish()
+            self.stats["chunks"] += 1
+            if self._fh is not None:
+                self.stats["bytes"] = self._fh.tell()
+                if self._stream is None:
+                    self._fh.close()
+                else:
+                    self._fh.flush()
+        except Exception as exc:  # noqa: BLE001
+            self._fail(f"cannot finish the file: {type(exc).__name__}: {exc}")
+        self._writer = None
+
+
+def open_recorder(options: RecordOptions, models: Mapping[str, CameraModel], *,
+                  virtual: bool, t_ns: int, metadata: Mapping[str, str]) -> McapRecorder:
+    """The assembly's recorder for one flight, with both cameras' calibration written."""
+    rec = McapRecorder(options.path, jpeg_quality=options.jpeg_quality,
+                       queue_frames=options.queue_frames,
+                       when_full="wait" if virtual else "drop", chunk_s=options.chunk_s,
+                       chunk_bytes=options.chunk_bytes, compression=options.compression,
+                       metadata=metadata)
+    for cid, model in models.items():
+        rec.calibration(cid, model, t_ns)
+    return rec

@@ -1,0 +1,150 @@
+"""Reading MCAP flight recordings: a linear pass that survives a file cut short (a crash, a
+``kill -9``, a full disk), :func:`recover` (a valid copy of everything up to the last
+complete chunk) and :func:`summarize` (``eaglemission log FILE.mcap``)."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import EndOfFile, McapError
+from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import Writer
+
+
+@dataclass
+class Scan:
+    """What a linear read of a recording found."""
+
+    complete: bool = False
+    """The file has its footer (it was closed properly)."""
+    chunks: int = 0
+    """Complete chunks read."""
+    messages: int = 0
+    stopped: str = ""
+    """Why the read stopped before the footer (a truncated or corrupt record)."""
+    topics: Counter[str] = field(default_factory=Counter)
+
+
+def scan(path: str | Path, st: Scan) -> Iterator[Any]:
+    """Every Schema, Channel, Message and Metadata record of the file, in file order, up to
+    its footer or its last complete chunk (``st`` counts them and says where it stopped); a
+    chunk is read only whole (its CRC checked), so a truncated one is left out entirely."""
+    channels: dict[int, str] = {}
+    with open(path, "rb") as fh:
+        it = iter(StreamReader(fh, emit_chunks=True).records)
+        while True:
+            try:
+                rec = next(it)
+            except StopIteration:
+                break
+            except EndOfFile:
+                st.stopped = "the file ends inside a record: cut short"
+                break
+            except (McapError, EOFError, ValueError, OSError) as exc:  # corrupt
+                st.stopped = f"{type(exc).__name__}: {exc}".strip()
+                break
+            if isinstance(rec, Chunk):
+                try:
+                    inner = breakup_chunk(rec, validate_crc=True)
+                except Exception as exc:  # noqa: BLE001 - a corrupt chunk ends the readable part
+                    st.stopped = f"corrupt chunk: {type(exc).__name__}: {exc}"
+                    break
+                st.chunks += 1
+                for r in inner:
+                    yield from _count(r, st, channels)
+            elif isinstance(rec, Footer):
+                st.complete = True
+            else:
+                yield from _count(rec, st, channels)
+
+
+def _count(rec: Any, st: Scan, channels: dict[int, str]) -> Iterator[Any]:
+    if isinstance(rec, Channel):
+        channels[rec.id] = rec.topic
+    elif isinstance(rec, Message):
+        st.messages += 1
+        st.topics[channels.get(rec.channel_id, "?")] += 1
+    elif not isinstance(rec, Schema | Metadata):
+        return
+    yield rec
+
+
+@dataclass(frozen=True)
+class Recovered:
+    source: Path
+    output: Path
+    messages: int
+    chunks: int
+    complete: bool
+    stopped: str
+
+    def line(self) -> str:
+        how = ("the file was complete" if self.complete
+               else f"read up to its last complete chunk ({self.stopped or 'end of file'})")
+        return (f"recovered {self.messages} messages from {self.chunks} chunks of "
+                f"{self.source} into {self.output}: {how}")
+
+
+def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
+    """Rewrite ``source`` (a recording without a footer: cut short) into a valid MCAP file,
+    ``output`` (default ``<stem>.recovered.mcap`` beside it), keeping every message of every
+    complete chunk."""
+    src = Path(source)
+    out = Path(output) if output is not None else src.with_name(src.stem + ".recovered.mcap")
+    if out.resolve() == src.resolve():
+        raise ValueError("--recover: the output must be another file than the source")
+    schemas: dict[int, int] = {}
+    channels: dict[int, int] = {}
+    st = Scan()
+    with open(out, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="", library="eaglemission (recovered)")
+        for rec in scan(src, st):
+            if isinstance(rec, Schema):
+                if rec.id not in schemas:
+                    schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel):
+                if rec.id not in channels:
+                    channels[rec.id] = w.register_channel(
+                        rec.topic, rec.message_encoding, schemas.get(rec.schema_id, 0),
+                        dict(rec.metadata))
+            elif isinstance(rec, Message):
+                w.add_message(channels[rec.channel_id], log_time=rec.log_time, data=rec.data,
+                              publish_time=rec.publish_time, sequence=rec.sequence)
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+        w.finish()
+    return Recovered(src, out, st.messages, st.chunks, st.complete, st.stopped)
+
+
+def summarize(path: str | Path) -> list[str]:
+    """Lines a person reads: completeness, topics and counts, state changes, recorder stats."""
+    states: list[str] = []
+    stats: dict[str, Any] = {}
+    topics: dict[int, str] = {}
+    st = Scan()
+    for rec in scan(path, st):
+        if isinstance(rec, Channel):
+            topics[rec.id] = rec.topic
+        elif isinstance(rec, Message):
+            topic = topics.get(rec.channel_id, "")
+            if topic == "/log/state":
+                r = json.loads(rec.data)
+                states.append(f"  {r['t_s']:8.2f} s  {r['old']} -> {r['new']} ({r['reason']})")
+            elif topic == "/recorder/stats":
+                stats = json.loads(rec.data)
+    out = [f"{path}: {'complete' if st.complete else 'NO FOOTER (cut short: log --recover)'}"
+           f", {st.messages} messages in {st.chunks} chunks"]
+    out += [f"  {n:7d}  {t}" for t, n in sorted(st.topics.items())]
+    if states:
+        out.append("state changes:")
+        out += states
+    if stats:
+        out.append("recorder: " + ", ".join(f"{k} {v}" for k, v in stats.items() if v != ""))
+    return out

@@ -1,0 +1,207 @@
+"""``run --record FILE.mcap``: every processed frame, both calibrations and the mission log's
+records in one MCAP file that Foxglove's schemas decode; a file cut short (bytes cut off, a
+SIGKILLed ``run``) is recovered with all its complete chunks; write errors never stop the
+mission. Short flights (the coarse approach times out after 4 s) keep these quick."""
+
+from __future__ import annotations
+
+import errno
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from deployment_helpers import cli, log_records, run_env
+from eaglemission.missions.log import MissionLog
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mission_helpers import variant
+
+from eaglemission import mcap_record
+from eaglemission.assembly import FlightOptions, fly_sync
+from eaglemission.cli import main
+from eaglemission.config import MissionFile, load_config
+from eaglemission.interfaces import MissionHooks
+from eaglemission.mcap_record import McapRecorder, RecordOptions
+from eaglemission.mcap_tools import Scan, recover, scan
+from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+
+
+def _short(cfg: MissionFile) -> MissionFile:
+    data = cfg.model_dump(mode="json")
+    data["mission"]["params"]["timeouts"]["coarse_approach_s"] = 4.0
+    return MissionFile.model_validate(data)
+
+
+def _write(cfg: MissionFile, path: Path) -> Path:
+    path.write_text(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False))
+    return path
+
+
+def _messages(path: Path) -> list[tuple[str, str, Any]]:
+    with path.open("rb") as f:
+        return [(c.topic, s.name if s else "", m) for s, c, m in
+                make_reader(f).iter_messages(log_time_order=False)]
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """One short simulated flight through ``eaglemission run --record x.mcap --log x.jsonl``."""
+    tmp = tmp_path_factory.mktemp("mcap")
+    cfg = _short(variant(load_config(check_plugins=False),
+                         detector={"type": "mss", "params": {"downscale": 2}}))
+    code = main(["run", str(_write(cfg, tmp / "m.yaml")), "--record", str(tmp / "x.mcap"),
+                 "--log", str(tmp / "x.jsonl")])
+    assert code == 3  # FAILSAFE: the coarse approach timed out, as configured
+    return tmp / "x.mcap", tmp / "x.jsonl"
+
+
+def test_recording_holds_every_processed_frame_calibrations_and_the_log(recorded) -> None:
+    mcap, jsonl = recorded
+    msgs = _messages(mcap)
+    log = list(log_records(jsonl))
+    frames = next(r for r in log if r["kind"] == "end")["frames"]
+    for cam in (CAMERA_WIDE, CAMERA_NARROW):
+        imgs = [m for t, s, m in msgs if t == f"/camera/{cam}/image"]
+        assert {s for t, s, _ in msgs if t == f"/camera/{cam}/image"} == {
+            "foxglove.CompressedImage"}
+        assert len(imgs) == frames[cam] > 0, cam  # every processed frame, no more
+        img = CompressedImage.FromString(imgs[-1].data)  # Foxglove's own schema package
+        assert img.format == "jpeg" and img.frame_id == cam and img.data[:2] == b"\xff\xd8"
+        assert img.timestamp.ToNanoseconds() == imgs[-1].log_time
+        info = [json.loads(m.data) for t, _, m in msgs if t == f"/camera/{cam}/frame"]
+        assert [i["seq"] for i in info] == [m.sequence for m in imgs]
+        assert {"timestamp_ns", "host_time_ns", "exposure_s", "camera_id"} <= set(info[0])
+        cal = [CameraCalibration.FromString(m.data) for t, _, m in msgs
+               if t == f"/camera/{cam}/calibration"]
+        assert len(cal) == 1 and cal[0].width == 1280 and cal[0].height == 960
+        assert len(cal[0].K) == 9 and cal[0].K[0] > 0 and len(cal[0].P) == 12
+    # the log's records are the recording's records, line for line, each on its kind's topic
+    lines = [ln.strip() for ln in jsonl.read_text().splitlines() if ln.strip()]
+    logged = [(t, m.data.decode()) for t, _, m in msgs if t.startswith("/log/")]
+    assert sorted(d for _, d in logged) == sorted(lines)
+    assert all(t == "/log/" + json.loads(d)["kind"] for t, d in logged)
+    states = [json.loads(d) for t, d in logged if t == "/log/state"]
+    assert states == [r for r in log if r["kind"] == "state"] and len(states) >= 3
+    assert any(t == "/log/config" for t, _ in logged)
+    stats = json.loads(next(m.data for t, _, m in msgs if t == "/recorder/stats"))
+    assert stats["frames_dropped"] == 0 and stats["write_errors"] == 0
+    # log time is the mission clock (virtual here): the log records' own t_ns
+    assert all(m.log_time == json.loads(m.data)["t_ns"] for t, _, m in msgs
+               if t.startswith("/log/"))
+
+
+def _chunk_ends_and_counts(path: Path) -> list[tuple[int, int]]:
+    """(end offset, messages) of every chunk, in file order."""
+    with path.open("rb") as f:
+        idx = make_reader(f).get_summary().chunk_indexes
+    with path.open("rb") as f:
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+    assert len(idx) == len(chunks)
+    return [(ci.chunk_start_offset + ci.chunk_length,
+             sum(isinstance(r, Message) for r in breakup_chunk(ch)))
+            for ci, ch in zip(idx, chunks)]
+
+
+@pytest.mark.parametrize("fraction", [0.37, 0.81])
+def test_a_file_cut_short_is_recovered_with_all_complete_chunks(recorded, tmp_path: Path,
+                                                                fraction: float) -> None:
+    mcap, _ = recorded
+    data = mcap.read_bytes()
+    cut = int(len(data) * fraction)
+    (tmp_path / "cut.mcap").write_bytes(data[:cut])
+    chunks = _chunk_ends_and_counts(mcap)
+    expected = sum(n for end, n in chunks if end <= cut)
+    assert 0 < expected < sum(n for _, n in chunks)
+    p = subprocess.run(cli("log", "--recover", str(tmp_path / "cut.mcap"), "-o",
+                           str(tmp_path / "ok.mcap")), capture_output=True, text=True,
+                       timeout=60, env=run_env())
+    assert p.returncode == 0, p.stderr
+    assert f"recovered {expected} messages" in p.stdout
+    assert len(_messages(tmp_path / "ok.mcap")) == expected  # a valid file: indexed reader
+
+
+def test_a_sigkilled_run_is_recovered(fast_config, tmp_path: Path) -> None:
+    path = _write(_short(fast_config), tmp_path / "m.yaml")
+    out = tmp_path / "k.mcap"
+    proc = subprocess.Popen(cli("run", str(path), "--record", str(out)),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=run_env())
+    try:
+        deadline = time.monotonic() + 60.0
+        while True:  # kill once a few seconds of flight are on disk
+            st = Scan()
+            if out.exists():
+                topics = {getattr(r, "topic", "") for r in scan(out, st)}
+                if st.chunks >= 4 and "/camera/wide/image" in topics:
+                    break
+            assert proc.poll() is None and time.monotonic() < deadline, "no chunks written"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    before = Scan()
+    list(scan(out, before))
+    assert not before.complete
+    rec = recover(out, tmp_path / "r.mcap")
+    assert not rec.complete and rec.chunks >= 4 and rec.messages == before.messages
+    msgs = _messages(tmp_path / "r.mcap")
+    assert len(msgs) == rec.messages
+    topics = {t for t, _, _ in msgs}
+    assert {"/camera/wide/calibration", "/camera/narrow/calibration", "/camera/wide/image",
+            "/log/state", "/log/telemetry"} <= topics
+
+
+class _FullDisk:
+    """A file that fails with ENOSPC once ``limit`` bytes are written."""
+
+    def __init__(self, path: Path, limit: int) -> None:
+        self._f = path.open("wb")
+        self.limit = limit
+
+    def write(self, data: bytes) -> int:
+        if self._f.tell() + len(data) > self.limit:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return self._f.write(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
+
+
+def test_a_full_disk_does_not_stop_the_mission(fast_config, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(mcap_record, "open", lambda p, mode: _FullDisk(Path(p), 1_500_000),
+                        raising=False)
+    res = fly_sync(_short(fast_config), FlightOptions(
+        record=RecordOptions(tmp_path / "full.mcap"),
+        hooks=MissionHooks(log_path=tmp_path / "f.jsonl")))
+    assert res.outcome is not None and res.outcome.final_state == "FAILSAFE"
+    assert "timed out" in res.outcome.reason  # the configured end, not the recorder
+    assert res.recording is not None and res.recording["write_errors"] == 1
+    assert "No space left" in res.recording["error"] and res.recording["messages_lost"] > 0
+    events = [r for r in log_records(tmp_path / "f.jsonl")
+              if r["kind"] == "event" and r.get("source") == "recorder"]
+    assert events and "recording stopped" in events[0]["text"]
+    assert recover(tmp_path / "full.mcap", tmp_path / "back.mcap").messages > 0
+
+
+def test_an_unwritable_path_is_reported_and_counted(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("not a folder")
+    rec = McapRecorder(tmp_path / "file" / "x.mcap")
+    log = MissionLog(None, now_ns=lambda: 5)
+    rec.bind(log.write)
+    log.subscribe(rec.record)
+    log.write("state", old="A", new="B", reason="r")  # accepted, not raised
+    time.sleep(0.3)
+    log.write("telemetry")
+    stats = rec.close()
+    assert stats["write_errors"] == 1 and "cannot create" in stats["error"]
+    assert stats["messages_lost"] >= 1
+    assert any(r["kind"] == "event" and r["source"] == "recorder" for r in log.records)
