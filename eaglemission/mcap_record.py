@@ -148,7 +148,7 @@ class McapRecorder:
             "bytes": 0, "error": ""}
         self._stream = stream
         self._fh: IO[bytes] | None = None
-        self._writer: Writer | None = None
+        self._writer: Any = None  # mcap's Writer: flush()/finish() are untyped
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue()

@@ -103,7 +103,7 @@ def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
     channels: dict[int, int] = {}
     st = Scan()
     with open(out, "wb") as fh:
-        w = Writer(fh)
+        w: Any = Writer(fh)  # mcap's Writer: finish() is untyped
         w.start(profile="", library="eaglemission (recovered)")
         for rec in scan(src, st):
             if isinstance(rec, Schema):
