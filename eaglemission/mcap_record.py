@@ -93,9 +93,14 @@ def part_path(path: Path, part: int) -> Path:
 
 def options_from_config(rec: Any, *, now: datetime | None = None) -> RecordOptions:
     """The :class:`RecordOptions` of a mission file's ``recording`` section, ``{utc}`` in its
-    path replaced; raises ValueError when the file exists (recordings are never overwritten)."""
+    path replaced (``-1``, ``-2``... appended to it for a second flight within the same second);
+    raises ValueError when the file exists (recordings are never overwritten)."""
     stamp = (now or datetime.now(UTC)).strftime("%Y%m%dT%H%M%SZ")
     path = Path(str(rec.path).replace("{utc}", stamp))
+    k = 0
+    while "{utc}" in str(rec.path) and path.exists():  # two flights within a second
+        k += 1
+        path = Path(str(rec.path).replace("{utc}", f"{stamp}-{k}"))
     if path.suffix.lower() != ".mcap":
         raise ValueError(f"recording.path: must end in .mcap, got {str(rec.path)!r}")
     if path.exists():

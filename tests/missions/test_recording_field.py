@@ -152,3 +152,17 @@ def test_frame_counts_count_a_cameras_skipped_frames_from_its_sequence_numbers()
     counts.grabbed(Frame(img, 20, "wide", 20))
     assert counts.as_dict()["wide"] == {"grabbed": 10, "processed": 0, "skipped": 5,
                                         "dropped": 0}
+
+
+def test_utc_names_never_collide(tmp_path: Path) -> None:
+    from datetime import UTC, datetime
+
+    from eaglemission.config import RecordingConfig
+    from eaglemission.mcap_record import options_from_config
+
+    rec = RecordingConfig(path=str(tmp_path / "{utc}.mcap"))
+    now = datetime(2026, 12, 1, 10, 15, 2, tzinfo=UTC)
+    first = options_from_config(rec, now=now).path
+    assert first.name == "20261201T101502Z.mcap"
+    first.write_bytes(b"")
+    assert options_from_config(rec, now=now).path.name == "20261201T101502Z-1.mcap"
