@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import registry
+from eaglemission import mcap_record, registry
 from eaglemission.clock import BoundLoopClock, Clock, run_blocking, run_virtual
 from eaglemission.config import MissionFile, merge_params
 from eaglemission.context import SharedContext
@@ -255,7 +255,9 @@ class FlightOptions:
     """Called with the connected, open parts before the mission is built (test harnesses
     wrap parts here)."""
     record: Any = None
-    """A :class:`~eaglemission.mcap_record.RecordOptions`: record the flight as MCAP."""
+    """A :class:`~eaglemission.mcap_record.RecordOptions`: record the flight as MCAP (None:
+    as the config's ``recording`` section says, when ``record_config``)."""
+    record_config: bool = True
     truth_wait_s: float = 3.0
     """How long to wait, after connecting, for the first ground-truth sample."""
     camera_open_timeout_s: float = 20.0
@@ -407,6 +409,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
     try:
         flight_plan = plan(cfg)
         driver, safe = build_vehicle(cfg, clock, shared)
+        record = mcap_record.planned(cfg, opt.record, use_config=opt.record_config)
     except (ConfigError, PluginError) as exc:
         return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual)
     result = FlightResult(EXIT_ERROR, virtual=virtual)
@@ -440,10 +443,14 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         result.header = header_lines(asm, virtual=virtual)
         if opt.on_header is not None:
             opt.on_header(result.header)
+        disk = None if record is None else mcap_record.disk_check(record, say)
+        if disk is not None and not disk[1] and not opt.dry_run:
+            result.exit_code, result.error = EXIT_PREFLIGHT, f"{disk[0]}: {disk[2]}"
+            return result
         if opt.dry_run:
             from eaglemission.preflight import dry_run_checks
 
-            result.checks = await dry_run_checks(asm, say)
+            result.checks = await dry_run_checks(asm, say) + ([disk] if disk else [])
             ok = all(passed for _, passed, _ in result.checks)
             result.exit_code = EXIT_DONE if ok else EXIT_PREFLIGHT
             if not ok:
@@ -466,7 +473,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                 return result
         if opt.prepare is not None:
             opt.prepare(asm)
-        recorder, hooks = _recorder(cfg, opt, asm, virtual)
+        recorder, hooks = mcap_record.flight_recorder(cfg, record, asm, virtual, opt.hooks)
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
                                 parts=asm.parts(realtime=not virtual), hooks=hooks)
         interrupts.mission = mission
@@ -489,24 +496,6 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         await _close_all(asm, opened)
         result.wall_s = time.perf_counter() - wall0
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9
-
-
-def _recorder(cfg: MissionFile, opt: FlightOptions, asm: Assembly, virtual: bool
-              ) -> tuple[Any, MissionHooks]:
-    """The flight's MCAP recorder (``opt.record``) and the hooks that feed it."""
-    if opt.record is None:
-        return None, opt.hooks
-    import dataclasses
-    import json
-
-    from eaglemission.mcap_record import open_recorder
-    from eaglemission.provenance import config_sha256, package_versions
-
-    meta = {"config_sha256": config_sha256(cfg), "versions": json.dumps(package_versions()),
-            "clock": "virtual" if virtual else "wall"}
-    rec = open_recorder(opt.record, {c: cam.model for c, cam in asm.cameras.items()},
-                        virtual=virtual, t_ns=asm.clock.now_ns(), metadata=meta)
-    return rec, dataclasses.replace(opt.hooks, recorder=rec)
 
 
 class _Interrupts:

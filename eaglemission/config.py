@@ -219,6 +219,23 @@ class SafetyConfig(StrictModel):
         return self
 
 
+class RecordingConfig(StrictModel):
+    """Record every flight of this file as MCAP (docs/recording.md); ``run --record FILE.mcap``
+    replaces ``path``, ``run --no-record`` turns it off. ``path`` is relative to the mission
+    file's folder; ``{utc}`` becomes the flight's start time, UTC (``20261201T101502Z``); an existing file
+    is never overwritten (the flight is refused)."""
+
+    path: Annotated[str, Field(min_length=1)] = "flights/{utc}.mcap"
+    quality: Annotated[int, Field(ge=1, le=100)] = 75
+    """JPEG quality of the images (``--record-quality`` overrides)."""
+    split_mb: PosFloat | None = None
+    """Close the file once it holds this many MB (a valid file, footer and index) and go on in
+    ``NAME.001.mcap``, ``NAME.002.mcap``... (each readable alone); ``null``: one file."""
+    min_free_mb: NonNegFloat = 1000.0
+    """Refuse to take off (exit 5) when the recording's disk has less free space than this;
+    ``run --dry-run`` reports the figure."""
+
+
 class MissionFile(StrictModel):
     """A whole mission configuration file."""
 
@@ -234,6 +251,8 @@ class MissionFile(StrictModel):
     tool_point_m: XYZm = (0.0, 0.0, 0.3)
     mission: MissionConfig
     safety: SafetyConfig = Field(default_factory=SafetyConfig)
+    recording: RecordingConfig | None = None
+    """Record every flight as MCAP (``null``: only with ``run --record``)."""
     world: PluginSection | None = None
     """The simulated world the fake drivers share (ground truth; ``eaglemission plugins``
     lists the ``worlds``); ``null`` for flights with nothing simulated."""
@@ -489,8 +508,8 @@ def load_config(path: str | Path | None = None, *, check_plugins: bool = True,
 
 
 def resolve_relative_paths(cfg: MissionFile, base_dir: Path | None) -> MissionFile:
-    """Make ``cameras.*.calibration_file`` and ``target.appearance_image`` absolute, relative to
-    the mission file's folder (the embedded configs resolve against the installed
+    """Make ``cameras.*.calibration_file``, ``target.appearance_image`` and ``recording.path``
+    absolute, relative to the mission file's folder (the embedded configs resolve against the installed
     ``eaglemission.configs`` package)."""
     if base_dir is None:
         base_dir = Path(str(resources.files("eaglemission.configs")))
@@ -505,5 +524,8 @@ def resolve_relative_paths(cfg: MissionFile, base_dir: Path | None) -> MissionFi
     if image is not None and not Path(image).is_absolute():
         update["target"] = cfg.target.model_copy(
             update={"appearance_image": str(base_dir / image)})
+    rec = cfg.recording
+    if rec is not None and not Path(rec.path).is_absolute():
+        update["recording"] = rec.model_copy(update={"path": str(base_dir / rec.path)})
     return cfg.model_copy(update=update)
 

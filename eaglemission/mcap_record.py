@@ -11,7 +11,15 @@ opens for a flight (:func:`open_recorder`). It writes, on its own thread:
   ``/camera/<id>/model`` (JSON: the full camera model, mount included), once at the start;
 * ``/log/<kind>``: every mission-log record, the very JSON line the ``--log`` file gets, on a
   topic per ``kind`` with a JSON schema;
-* ``/recorder/stats`` (JSON): the recorder's own counts, at the end.
+* ``/recorder/stats`` (JSON): the recorder's own counts and the mission's frame counts per
+  camera (grabbed, processed, skipped, dropped: the ``end`` record's ``frame_counts``), at the
+  end.
+
+Splitting (``split_bytes``): once a closed chunk leaves the file at that size, the file is
+finished (footer, index) and the recording goes on in ``NAME.001.mcap``, ``NAME.002.mcap``...;
+each part starts with its metadata, schemas and channels and with copies of the messages a
+reader needs to use it alone (both calibrations and camera models, the ``start`` and ``config``
+records; the part's ``eaglemission.part`` metadata says how many: ``carried``).
 
 Log time is the mission clock (virtual in simulation); publish time is the host's UTC time.
 Crash safety: a chunk is closed and the file flushed after every ``chunk_s`` of mission time
@@ -25,10 +33,12 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import shutil
 import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Literal
 
@@ -51,6 +61,8 @@ TOPIC_CALIBRATION = "/camera/{}/calibration"
 TOPIC_MODEL = "/camera/{}/model"
 TOPIC_LOG = "/log/{}"
 TOPIC_STATS = "/recorder/stats"
+CARRIED_LOG = ("/log/start", "/log/config")
+"""Log topics whose first message every part of a split recording starts with."""
 LOG_SCHEMA = "eaglemission.log.{}"
 PROFILE = ""  # no ROS profile: protobuf and JSON channels
 
@@ -68,6 +80,74 @@ class RecordOptions:
     """A chunk is closed (and the file flushed) at least this often, in mission time."""
     chunk_bytes: int = 4 << 20
     compression: Literal["zstd", "lz4", "none"] = "zstd"
+    split_mb: float | None = None
+    """Go on in ``NAME.001.mcap``... once a file holds this many MB (None: one file)."""
+    min_free_mb: float = 0.0
+    """Refuse to take off with less free space on the recording's disk."""
+
+
+def part_path(path: Path, part: int) -> Path:
+    """``NAME.mcap`` (part 0), ``NAME.001.mcap``, ``NAME.002.mcap``..."""
+    return path if part == 0 else path.with_name(f"{path.stem}.{part:03d}{path.suffix}")
+
+
+def options_from_config(rec: Any, *, now: datetime | None = None) -> RecordOptions:
+    """The :class:`RecordOptions` of a mission file's ``recording`` section, ``{utc}`` in its
+    path replaced (``-1``, ``-2``... appended to it for a second flight within the same second);
+    raises ValueError when the file exists (recordings are never overwritten)."""
+    stamp = (now or datetime.now(UTC)).strftime("%Y%m%dT%H%M%SZ")
+    path = Path(str(rec.path).replace("{utc}", stamp))
+    k = 0
+    while "{utc}" in str(rec.path) and path.exists():  # two flights within a second
+        k += 1
+        path = Path(str(rec.path).replace("{utc}", f"{stamp}-{k}"))
+    if path.suffix.lower() != ".mcap":
+        raise ValueError(f"recording.path: must end in .mcap, got {str(rec.path)!r}")
+    if path.exists():
+        raise ValueError(f"recording.path: {path} exists (recordings are never overwritten): "
+                         "choose a new name or put {utc} in it")
+    return RecordOptions(path, jpeg_quality=int(rec.quality), split_mb=rec.split_mb,
+                         min_free_mb=float(rec.min_free_mb))
+
+
+def planned(cfg: Any, record: RecordOptions | None, *, use_config: bool) -> RecordOptions | None:
+    """How a flight records: ``record`` (``run --record``), else the mission file's
+    ``recording`` section when ``use_config``; raises ConfigError for a bad or existing path."""
+    if record is not None or not use_config or cfg.recording is None:
+        return record
+    from eaglemission.errors import ConfigError
+
+    try:
+        return options_from_config(cfg.recording)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def disk_check(options: RecordOptions, say: Callable[[str], None] | None = None
+               ) -> tuple[str, bool, str]:
+    """``(name, passed, detail)``: the free space where the recording goes vs. ``min_free_mb``
+    (also said as a dry-run check line)."""
+    name, ok, detail = _disk_check(options)
+    if say is not None:
+        say(f"  [{'ok' if ok else 'FAIL'}] {name}: {detail}")
+    return name, ok, detail
+
+
+def _disk_check(options: RecordOptions) -> tuple[str, bool, str]:
+    where = options.path.resolve().parent
+    while not where.exists() and where != where.parent:
+        where = where.parent  # the recorder creates the missing folders
+    try:
+        free_mb = shutil.disk_usage(where).free / 1e6
+    except OSError as exc:
+        return ("recording: disk space", False, f"cannot read the free space at {where}: {exc}")
+    ok = free_mb >= options.min_free_mb
+    detail = (f"{free_mb:.0f} MB free at {where} (recording {options.path}, needs "
+              f"recording.min_free_mb {options.min_free_mb:g})")
+    if not ok:
+        detail = (f"only {free_mb:.0f} MB free at {where}, below recording.min_free_mb "
+                  f"{options.min_free_mb:g}: free space there or record elsewhere")
+    return ("recording: disk space", ok, detail)
 
 
 def file_descriptor_set(cls: Any) -> bytes:
@@ -128,7 +208,7 @@ class McapRecorder:
                  queue_frames: int = 32, when_full: Literal["drop", "wait"] = "drop",
                  chunk_s: float = 1.0, chunk_bytes: int = 4 << 20,
                  compression: str = "zstd", metadata: Mapping[str, str] | None = None,
-                 stream: IO[bytes] | None = None) -> None:
+                 stream: IO[bytes] | None = None, split_bytes: int | None = None) -> None:
         if when_full not in ("drop", "wait"):
             raise ValueError(f"when_full: 'drop' or 'wait', got {when_full!r}")
         if not 1 <= int(jpeg_quality) <= 100:
@@ -138,19 +218,25 @@ class McapRecorder:
         self.when_full = when_full
         self.chunk_ns = int(chunk_s * 1e9)
         self.chunk_s = float(chunk_s)
-        self.chunk_bytes = int(chunk_bytes)
+        self.split_bytes = None if split_bytes is None or stream is not None else int(split_bytes)
+        self.chunk_bytes = int(chunk_bytes) if self.split_bytes is None else max(
+            1, min(int(chunk_bytes), self.split_bytes // 4))
         self.compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                             "none": CompressionType.NONE}[compression]
         self.metadata = dict(metadata or {})
         self.stats: dict[str, Any] = {
             "frames_written": 0, "frames_dropped": 0, "records_written": 0,
             "records_dropped": 0, "messages_lost": 0, "write_errors": 0, "chunks": 0,
-            "bytes": 0, "error": ""}
+            "bytes": 0, "parts": 1, "path": "" if path is None else str(path), "error": ""}
         self._stream = stream
         self._fh: IO[bytes] | None = None
         self._writer: Any = None  # mcap's Writer: flush()/finish() are untyped
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
+        self._carry: dict[str, tuple[Any, ...]] = {}
+        """Topic -> the first message written on it, for the topics every part starts with."""
+        self._part = 0
+        self._bytes_before = 0
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue()
         self._frame_slots = threading.Semaphore(max(1, int(queue_frames)))
         self._records_pending = 0
@@ -180,6 +266,9 @@ class McapRecorder:
                 self.stats["records_dropped"] += 1
                 return
             self._records_pending += 1
+        if record.get("kind") == "end" and "frame_counts" in record:
+            with self._lock:
+                self.stats["cameras"] = record["frame_counts"]
         self._queue.put(("record", str(record.get("kind", "unknown")), int(record["t_ns"]),
                          time.time_ns(), line))
         self._report()
@@ -289,13 +378,37 @@ class McapRecorder:
             self._fh = self._stream
         else:
             assert self.path is not None
-            self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in _finish / _fail
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            # closed in _finish / _fail / _split
+            self._fh = open(part_path(self.path, self._part), "wb")  # noqa: SIM115
         w = Writer(self._fh, chunk_size=1 << 30, compression=self.compression)
         w.start(profile=PROFILE, library="eaglemission")
         if self.metadata:
             w.add_metadata("eaglemission", {str(k): str(v) for k, v in self.metadata.items()})
+        if self.split_bytes is not None:
+            assert self.path is not None
+            w.add_metadata("eaglemission.part", {
+                "part": str(self._part), "first": self.path.name,
+                "carried": str(len(self._carry) if self._part else 0)})
         self._writer = w
+        self._channels, self._schemas = {}, {}
+        if self._part:
+            for args in list(self._carry.values()):
+                self._write(*args, carry=False)
         self._fh.flush()
+
+    def _split(self) -> None:
+        """Finish this part (footer, index) and go on in the next one."""
+        w, fh = self._writer, self._fh
+        assert w is not None and fh is not None
+        w.finish()
+        self.stats["chunks"] += 1
+        self._bytes_before += fh.tell()
+        fh.close()
+        self._writer = self._fh = None
+        self._part += 1
+        self.stats["parts"] = self._part + 1
+        self._open()
 
     def _write_frame(self, frame: Frame, host_ns: int) -> None:
         if self._writer is None:
@@ -327,11 +440,15 @@ class McapRecorder:
 
     def _write(self, topic: str, schema_name: str, schema_encoding: str, schema: bytes,
                message_encoding: str, log_ns: int, publish_ns: int, data: bytes, *,
-               sequence: int = 0) -> None:
+               sequence: int = 0, carry: bool = True) -> None:
         w = self._writer
         if w is None:
             self.stats["messages_lost"] += 1
             return
+        if carry and self.split_bytes is not None and topic not in self._carry and (
+                topic in CARRIED_LOG or topic.endswith(("/calibration", "/model"))):
+            self._carry[topic] = (topic, schema_name, schema_encoding, schema,
+                                  message_encoding, log_ns, publish_ns, data)
         cid = self._channels.get(topic)
         if cid is None:
             sid = self._schemas.get(schema_name)
@@ -358,7 +475,10 @@ class McapRecorder:
             self._writer.flush()  # closes the chunk, writes its indexes, flushes the stream
             self.stats["chunks"] += 1
             if self._fh is not None:
-                self.stats["bytes"] = self._fh.tell()
+                size = self._fh.tell()
+                self.stats["bytes"] = self._bytes_before + size
+                if self.split_bytes is not None and size >= self.split_bytes:
+                    self._split()
         except Exception as exc:  # noqa: BLE001
             self._fail(f"write failed: {type(exc).__name__}: {exc}")
         self._chunk_t0, self._chunk_size = None, 0
@@ -389,7 +509,7 @@ class McapRecorder:
             w.finish()
             self.stats["chunks"] += 1
             if self._fh is not None:
-                self.stats["bytes"] = self._fh.tell()
+                self.stats["bytes"] = self._bytes_before + self._fh.tell()
                 if self._stream is None:
                     self._fh.close()
                 else:
@@ -402,11 +522,29 @@ class McapRecorder:
 def open_recorder(options: RecordOptions, models: Mapping[str, CameraModel], *,
                   virtual: bool, t_ns: int, metadata: Mapping[str, str]) -> McapRecorder:
     """The assembly's recorder for one flight, with both cameras' calibration written."""
+    split = None if options.split_mb is None else int(options.split_mb * 1e6)
     rec = McapRecorder(options.path, jpeg_quality=options.jpeg_quality,
                        queue_frames=options.queue_frames,
                        when_full="wait" if virtual else "drop", chunk_s=options.chunk_s,
                        chunk_bytes=options.chunk_bytes, compression=options.compression,
-                       metadata=metadata)
+                       metadata=metadata, split_bytes=split)
     for cid, model in models.items():
         rec.calibration(cid, model, t_ns)
     return rec
+
+
+def flight_recorder(cfg: Any, options: RecordOptions | None, asm: Any, virtual: bool,
+                    hooks: Any) -> tuple[McapRecorder | None, Any]:
+    """The assembly's recorder for a flight (``options`` None: none) and the mission hooks
+    that feed it."""
+    if options is None:
+        return None, hooks
+    import dataclasses
+
+    from eaglemission.provenance import config_sha256, package_versions
+
+    meta = {"config_sha256": config_sha256(cfg), "versions": json.dumps(package_versions()),
+            "clock": "virtual" if virtual else "wall"}
+    rec = open_recorder(options, {c: cam.model for c, cam in asm.cameras.items()},
+                        virtual=virtual, t_ns=asm.clock.now_ns(), metadata=meta)
+    return rec, dataclasses.replace(hooks, recorder=rec)

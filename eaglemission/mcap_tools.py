@@ -123,28 +123,77 @@ def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
     return Recovered(src, out, st.messages, st.chunks, st.complete, st.stopped)
 
 
+def parts_of(path: str | Path) -> list[Path]:
+    """The files of a recording: ``NAME.mcap`` and, when it was split (``recording.split_mb``),
+    ``NAME.001.mcap``, ``NAME.002.mcap``... as long as they follow each other."""
+    first = Path(path)
+    out = [first]
+    while True:
+        nxt = first.with_name(f"{first.stem}.{len(out):03d}{first.suffix}")
+        if not nxt.exists():
+            return out
+        out.append(nxt)
+
+
+def messages(path: str | Path, st: Scan | None = None) -> Iterator[tuple[str, Message]]:
+    """(topic, message) of every message of a recording, split or not, in file order, each
+    once: the copies a part starts with (``eaglemission.part`` metadata, ``carried``) are left
+    out."""
+    for part in parts_of(path):
+        topics: dict[int, str] = {}
+        carried = 0
+        for rec in scan(part, st if st is not None else Scan()):
+            if isinstance(rec, Metadata) and rec.name == "eaglemission.part":
+                carried = int(rec.metadata.get("carried", "0"))
+            elif isinstance(rec, Channel):
+                topics[rec.id] = rec.topic
+            elif isinstance(rec, Message):
+                if carried:
+                    carried -= 1
+                    continue
+                yield topics.get(rec.channel_id, ""), rec
+
+
 def summarize(path: str | Path) -> list[str]:
-    """Lines a person reads: completeness, topics and counts, state changes, recorder stats."""
+    """Lines a person reads: completeness (of each part of a split recording), topics and
+    counts, state changes, the recorder's stats and the frame counts per camera."""
+    out: list[str] = []
+    files = parts_of(path)
+    all_complete = True
+    if len(files) > 1:
+        out.append(f"{path}: split recording, {len(files)} parts:")
+        for f in files:
+            st = Scan()
+            for _ in scan(f, st):
+                pass
+            all_complete = all_complete and st.complete
+            out.append(f"  {f.name}: {'complete' if st.complete else 'NO FOOTER (--recover)'}, "
+                       f"{st.messages} messages in {st.chunks} chunks, "
+                       f"{f.stat().st_size / 1e6:.1f} MB")
     states: list[str] = []
     stats: dict[str, Any] = {}
-    topics: dict[int, str] = {}
+    counts: Counter[str] = Counter()
     st = Scan()
-    for rec in scan(path, st):
-        if isinstance(rec, Channel):
-            topics[rec.id] = rec.topic
-        elif isinstance(rec, Message):
-            topic = topics.get(rec.channel_id, "")
-            if topic == "/log/state":
-                r = json.loads(rec.data)
-                states.append(f"  {r['t_s']:8.2f} s  {r['old']} -> {r['new']} ({r['reason']})")
-            elif topic == "/recorder/stats":
-                stats = json.loads(rec.data)
-    out = [f"{path}: {'complete' if st.complete else 'NO FOOTER (cut short: log --recover)'}"
-           f", {st.messages} messages in {st.chunks} chunks"]
-    out += [f"  {n:7d}  {t}" for t, n in sorted(st.topics.items())]
+    for topic, rec in messages(path, st):
+        counts[topic] += 1
+        if topic == "/log/state":
+            r = json.loads(rec.data)
+            states.append(f"  {r['t_s']:8.2f} s  {r['old']} -> {r['new']} ({r['reason']})")
+        elif topic == "/recorder/stats":
+            stats = json.loads(rec.data)
+    head = "complete" if st.complete else "NO FOOTER (cut short: log --recover)"
+    if len(files) > 1:
+        head = "all parts complete" if all_complete else "a part is cut short (log --recover it)"
+    out.insert(0 if len(files) == 1 else 1 + len(files),
+               f"{path}: {head}, {sum(counts.values())} messages in {st.chunks} chunks")
+    out += [f"  {n:7d}  {t}" for t, n in sorted(counts.items())]
     if states:
         out.append("state changes:")
         out += states
+    cams = stats.pop("cameras", None) or {}
     if stats:
         out.append("recorder: " + ", ".join(f"{k} {v}" for k, v in stats.items() if v != ""))
+    for cam, n in cams.items():
+        out.append(f"camera {cam}: {n['grabbed']} frames grabbed = {n['processed']} processed + "
+                   f"{n['skipped']} skipped + {n['dropped']} dropped")
     return out

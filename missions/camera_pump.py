@@ -4,15 +4,19 @@ needs it, frames queued for perception with the vehicle state at their mid-expos
 A camera is grabbed only while the state's policy needs it (cruise: wide only, as the paper
 does), so a synthetic camera renders lazily; with ``record_all`` both are grabbed whenever
 airborne (a recording has both streams). Grabs run in worker threads, bounded.
+
+Every frame is counted per camera (:class:`FrameCounts`): ``grabbed`` = ``processed`` +
+``skipped`` + ``dropped``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 
 from eaglemission.missions.log import MissionLog
 
@@ -23,6 +27,48 @@ from eaglemission.types import Frame, VehicleState
 
 QueuedFrame = tuple[Frame, float, VehicleState | None]
 """(frame, host wall time of its mid-exposure, vehicle state at that time)."""
+
+COUNTS = ("grabbed", "processed", "skipped", "dropped")
+
+
+class FrameCounts:
+    """Per camera: frames ``grabbed`` (taken from the camera, plus the frames a camera's
+    sequence numbers show it delivered between two paced grabs), ``skipped`` (not meant for
+    perception: those in-between frames the processing rate let pass, frames grabbed only for
+    a recording while the state does not use the camera, frames arriving after the mission's
+    final state), ``dropped`` (meant to be processed and not: perception was behind and the
+    queue dropped its oldest, or the flight ended first) and ``processed``."""
+
+    def __init__(self, cameras: list[str]) -> None:
+        self.counts = {c: dict.fromkeys(COUNTS, 0) for c in cameras}
+        self._last_seq: dict[str, int] = {}
+
+    def grabbed(self, frame: Frame) -> None:
+        c = self.counts[frame.camera_id]
+        last = self._last_seq.get(frame.camera_id)
+        gap = frame.seq - last - 1 if last is not None and frame.seq > last else 0
+        c["grabbed"] += 1 + gap
+        c["skipped"] += gap
+        self._last_seq[frame.camera_id] = frame.seq
+
+    def idle(self, camera_id: str) -> None:
+        """The pump stopped taking this camera's frames: the next gap is no skip."""
+        self._last_seq.pop(camera_id, None)
+
+    def add(self, camera_id: str, what: str, n: int = 1) -> None:
+        self.counts[camera_id][what] += n
+
+    def as_dict(self) -> dict[str, dict[str, int]]:
+        return {c: dict(v) for c, v in self.counts.items()}
+
+    @contextlib.contextmanager
+    def dropped_on_error(self, camera_id: str) -> Iterator[None]:
+        """A frame in perception: dropped if perception raises (or is cancelled)."""
+        try:
+            yield
+        except BaseException:
+            self.add(camera_id, "dropped")
+            raise
 
 
 def _is_virtual() -> bool:
@@ -44,6 +90,7 @@ class CameraPump:
         self.rate_hz = rate_hz
         self.needed, self.recording, self.on_frame = needed, recording, on_frame
         self.frames: asyncio.Queue[QueuedFrame] = asyncio.Queue(maxsize=4)
+        self.counts = FrameCounts(list(cameras))
         self.last_frame_ns: dict[str, int] = {}
         self.needed_since_ns: dict[str, int] = {}
         self.stopping = False
@@ -68,6 +115,7 @@ class CameraPump:
         while not self.stopping:
             if cam_id not in self.needed() and not self.recording():
                 self.needed_since_ns.pop(cam_id, None)
+                self.counts.idle(cam_id)
                 await self.clock.sleep(period_ns * 1e-9)
                 next_ns = self.clock.now_ns()
                 continue
@@ -90,13 +138,39 @@ class CameraPump:
                 0.0, (self.clock.now_ns() - frame.timestamp_ns) * 1e-9)
             wall = time.perf_counter() - age_s
             self.last_frame_ns[cam_id] = self.clock.now_ns()
+            self.counts.grabbed(frame)
             if self.on_frame is not None:
                 self.on_frame(frame)
             if cam_id not in self.needed():
+                self.counts.add(cam_id, "skipped")
                 continue  # recorded only: perception does not need this camera now
             item = (frame, wall, self.vehicle.state_at(frame.timestamp_ns))
             try:
                 self.frames.put_nowait(item)
             except asyncio.QueueFull:
-                self.frames.get_nowait()  # drop the oldest: perception is behind
+                old = self.frames.get_nowait()  # drop the oldest: perception is behind
+                self.counts.add(old[0].camera_id, "dropped")
                 self.frames.put_nowait(item)
+
+    async def take(self, *, final: Callable[[], bool]) -> QueuedFrame | None:
+        """The next frame for perception (None: none within 0.5 s, or the mission is in its
+        final state: the frame is skipped)."""
+        try:
+            item = await asyncio.wait_for(self.frames.get(), timeout=0.5)
+        except TimeoutError:
+            return None
+        if final():
+            self.counts.add(item[0].camera_id, "skipped")
+            return None
+        return item
+
+    def final_counts(self, processed: Mapping[str, int], *, final: bool
+                     ) -> dict[str, dict[str, int]]:
+        """The counts at the end: frames still queued are skipped after the final state, else
+        dropped; ``processed``: the mission's own count."""
+        while not self.frames.empty():
+            frame = self.frames.get_nowait()[0]
+            self.counts.add(frame.camera_id, "skipped" if final else "dropped")
+        for c, n in processed.items():
+            self.counts.counts[c]["processed"] = n
+        return self.counts.as_dict()

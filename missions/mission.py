@@ -100,6 +100,9 @@ class ApproachOutcome:
                 f"{k}={v:g}" for k, v in r.failsafe_params.items()))
         out += [f"  warning: {w}" for w in r.failsafe_warnings]
         out.append(f"frames processed: {r.frames_processed}, with a detection: {r.detections}")
+        for cam, n in r.frame_counts.items():
+            out.append(f"camera {cam}: {n['grabbed']} frames grabbed = {n['processed']} processed "
+                       f"+ {n['skipped']} skipped + {n['dropped']} dropped")
         out.append(f"envelope violations ({'true' if self.judged_on == 'truth' else 'reported'}"
                    f" trajectory): {len(ev.violations)}" + "".join(
                        f"\n  {v.kind} at {v.t_s:.1f} s: {v.value:.2f} > {v.limit:.2f} for "

@@ -26,6 +26,8 @@ class MissionResult:
     estimated_tool_errors_m: tuple[float, float] | None = None
     latencies_ms: list[float] = field(default_factory=list)
     frames_processed: dict[str, int] = field(default_factory=dict)
+    frame_counts: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Per camera: grabbed, processed, skipped, dropped (missions/camera_pump.py)."""
     detections: dict[str, int] = field(default_factory=dict)
     detection_frames: list[tuple[float, str, str, int, tuple[float, float] | None]] = field(
         default_factory=list)

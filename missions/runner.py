@@ -241,14 +241,13 @@ class MissionRunner:
     # -- perception ------------------------------------------------------------------------------
     async def _perception_loop(self) -> None:
         while not self._stopping:
-            try:
-                frame, wall, state = await asyncio.wait_for(self.pump.frames.get(), timeout=0.5)
-            except TimeoutError:
+            item = await self.pump.take(final=lambda: self.machine.final)
+            if item is None:
                 continue
-            if self.machine.final:
-                continue
-            req = self._request(frame, state)
-            meas = await run_blocking(self.perception.perceive, req, self.tools[frame.camera_id])
+            frame, wall, state = item
+            with self.pump.counts.dropped_on_error(frame.camera_id):
+                meas = await run_blocking(self.perception.perceive, self._request(frame, state),
+                                          self.tools[frame.camera_id])
             self._apply(meas, wall)
             self._wake_machine.set()
 
@@ -414,7 +413,6 @@ class MissionRunner:
             if step.at_standoff:
                 self._wake_machine.set()
 
-    # -- telemetry -----------------------------------------------------------------------------
     # -- main ----------------------------------------------------------------------------------
     def _result(self) -> MissionResult:
         act = self.actuator
@@ -425,6 +423,7 @@ class MissionRunner:
             t_grasp_ready_s=self.t_grasp_ready_s,
             estimated_tool_errors_m=self.track.tool_errors,
             latencies_ms=self.latencies_ms, frames_processed=dict(self._processed),
+            frame_counts=self.pump.final_counts(self._processed, final=self.machine.final),
             detections=dict(self._detected), detection_frames=self.detection_frames,
             failsafe_params=act.failsafe_params, failsafe_warnings=act.failsafe_warnings,
             perception_ms=self.perception_ms, wall_s=time.perf_counter() - self._wall0)
@@ -466,5 +465,6 @@ class MissionRunner:
                            action=result.action, t_grasp_ready_s=result.t_grasp_ready_s,
                            estimated_tool_errors_m=result.estimated_tool_errors_m,
                            latency_p90_ms=result.latency_p90_ms, frames=result.frames_processed,
-                           wall_s=round(result.wall_s, 3), completed=completed)
+                           frame_counts=result.frame_counts, wall_s=round(result.wall_s, 3),
+                           completed=completed)
         return result

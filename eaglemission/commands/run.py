@@ -38,8 +38,11 @@ def _add(p: argparse.ArgumentParser) -> None:
                    help="FILE.mcap: record the flight as MCAP (every processed frame, both "
                         "calibrations, every log record: docs/recording.md); DIR: both camera "
                         "streams + telemetry in the replay format (configs/replay.yaml)")
-    p.add_argument("--record-quality", metavar="Q", type=int, default=75,
-                   help="JPEG quality of the MCAP recording's images (1-100, default 75)")
+    p.add_argument("--record-quality", metavar="Q", type=int, default=None,
+                   help="JPEG quality of the MCAP recording's images (1-100; default the "
+                        "config's recording.quality, else 75)")
+    p.add_argument("--no-record", action="store_true",
+                   help="do not record, even when the config's `recording` section says so")
     p.add_argument("--log", metavar="FILE", help="JSON-lines mission log (default: none)")
     p.add_argument("--realtime", action="store_true",
                    help="run at wall-clock speed even when everything could run in virtual time")
@@ -111,6 +114,17 @@ def _confirm(question: str) -> bool:
     return answer.strip().lower() in ("y", "yes")
 
 
+def _record_options(section: Any, path: Path, quality: int | None) -> Any:
+    """``--record FILE.mcap``: the config's ``recording`` settings (quality, splitting, disk
+    check) with this path; ``--record-quality`` over the config's quality."""
+    from eaglemission.mcap_record import RecordOptions
+
+    if section is None:
+        return RecordOptions(path, jpeg_quality=75 if quality is None else quality)
+    return RecordOptions(path, jpeg_quality=section.quality if quality is None else quality,
+                         split_mb=section.split_mb, min_free_mb=section.min_free_mb)
+
+
 def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -138,6 +152,8 @@ def _run(args: argparse.Namespace) -> int:
         data["detector"] = {"type": args.detector, "params": {}}
     if args.vehicle == "simulated":
         data["vehicle"] = {"type": "simulated", "params": {}}
+    if args.record_quality is not None and data.get("recording"):
+        data["recording"]["quality"] = args.record_quality
     source = args.config or "<embedded sitl_synthetic.yaml>"
     _print(console, f"eaglemission run {source}")
 
@@ -153,16 +169,14 @@ def _run(args: argparse.Namespace) -> int:
     hooks_kw: dict[str, Any] = {}
     record_mcap = None
     if args.record and args.record.lower().endswith(".mcap"):
-        from eaglemission.mcap_record import RecordOptions
-
         if Path(args.record).exists():
             _print(err, f"error: --record {args.record}: exists (recordings are never "
                         "overwritten): choose a new name")
             return assembly.EXIT_CONFIG
-        if not 1 <= args.record_quality <= 100:
+        if args.record_quality is not None and not 1 <= args.record_quality <= 100:
             _print(err, "error: --record-quality: 1..100")
             return assembly.EXIT_CONFIG
-        record_mcap = RecordOptions(Path(args.record), jpeg_quality=args.record_quality)
+        record_mcap = _record_options(cfg.recording, Path(args.record), args.record_quality)
     elif args.record:
         from eaglemission.recording import RunRecorder
 
@@ -189,6 +203,7 @@ def _run(args: argparse.Namespace) -> int:
         confirm=None if (args.yes or args.vehicle == "emulator") else _confirm,
         handle_signals=True, on_header=on_header, on_line=lambda s: _print(console, s),
         prepare=prepare, record=record_mcap,
+        record_config=not (args.no_record or args.record),
         hooks=MissionHooks(log_path=Path(args.log) if args.log else None, on_state=on_state,
                            **hooks_kw))
     tmp = None
@@ -223,7 +238,9 @@ def _run(args: argparse.Namespace) -> int:
         _print(console, f"recording written to {args.record} ({recorder.stats})")
     if result.recording is not None:
         r = result.recording
-        what = (f"recording written to {args.record}: {r['frames_written']} frames, "
+        parts = f" in {r['parts']} parts" if r.get("parts", 1) > 1 else ""
+        what = (f"recording written to {r.get('path', args.record)}{parts}: "
+                f"{r['frames_written']} frames, "
                 f"{r['records_written']} log records, {r['bytes'] / 1e6:.1f} MB, "
                 f"{r['frames_dropped']} frames dropped, {r['write_errors']} write errors")
         _print(err if r["write_errors"] else console,
