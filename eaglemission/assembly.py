@@ -33,7 +33,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import mcap_record, registry
+from eaglemission import autopilot_guard, mcap_record, registry
+from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import BoundLoopClock, Clock, run_blocking, run_virtual
 from eaglemission.config import MissionFile, merge_params
 from eaglemission.context import SharedContext
@@ -143,12 +144,14 @@ class Assembly:
     truth: GroundTruth | None = None
     fitter: PlaneFitter | None = None
     tracker: Tracker | None = None
+    guard: AutopilotGuard | None = None
 
     def parts(self, *, realtime: bool) -> FlightParts:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
                            cameras=self.cameras, detectors=self.detectors, coarse=self.coarse,
                            fine=self.fine, shared=self.shared, fitter=self.fitter,
-                           tracker=self.tracker, truth=self.truth, realtime=realtime)
+                           tracker=self.tracker, truth=self.truth, realtime=realtime,
+                           autopilot_guard=self.guard)
 
 
 def _appearance(cfg: MissionFile) -> Any:
@@ -473,6 +476,11 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                 return result
         if opt.prepare is not None:
             opt.prepare(asm)
+        asm.guard = AutopilotGuard(asm.driver, cfg.safety, cfg.mission.cruise_altitude_m)
+        refused = await autopilot_guard.before_flight(asm.guard, say)
+        if refused:  # nothing armed; what was set already is restored below
+            result.exit_code, result.error = EXIT_PREFLIGHT, refused
+            return result
         recorder, hooks = mcap_record.flight_recorder(cfg, record, asm, virtual, opt.hooks)
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
                                 parts=asm.parts(realtime=not virtual), hooks=hooks)
@@ -493,6 +501,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
             result.error = result.error or f"{result.outcome.final_state}: {result.outcome.reason}"
         return result
     finally:
+        await autopilot_guard.after_flight(asm.guard, asm.vehicle, say)
         await _close_all(asm, opened)
         result.wall_s = time.perf_counter() - wall0
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9

@@ -209,6 +209,15 @@ class SafetyConfig(StrictModel):
     envelope); a second signal exits at once."""
     interrupt_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 120.0
     """How long ``run`` waits for that action (landed, or the mode confirmed) before giving up."""
+    autopilot_params: Literal["set", "refuse"] = "set"
+    """The autopilot's own parameters that would take the vehicle outside this envelope
+    (RTL_RETURN_ALT above ``max_altitude_m``, MPC_Z_V_AUTO_UP above
+    ``max_vertical_speed_mps``...; docs/vehicles.md): ``set`` puts them inside before the
+    flight, logs each change and restores the old values after it; ``refuse`` does not fly
+    and names the parameter and the envelope key. ``set`` is the default for every vehicle:
+    PX4's defaults (a 30 m return at 3 m/s) are what left the envelope, and the values are
+    restored after landing; choose ``refuse`` when the autopilot's parameters are managed
+    elsewhere and must not be written."""
 
     @model_validator(mode="after")
     def _band(self) -> SafetyConfig:

@@ -2,7 +2,8 @@
 
 Each check is ``(name, passed, detail)``. Cameras: one frame grabbed from each (bounded) and
 compared with its calibration (resolution). Vehicle: link, home, position/GPS, armable, on the
-ground, battery, downward rangefinder; the autopilot's failsafe parameters when it has any.
+ground, battery, downward rangefinder; the autopilot's version and failsafe parameters when it
+has any, and which of them the flight would set inside the envelope or refuse for.
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import run_blocking
-from eaglemission.names import PX4_FAILSAFE_PARAMS
+from eaglemission.config import SafetyConfig
 
 Check = tuple[str, bool, str]
 
@@ -62,27 +64,36 @@ def vehicle_checks(state: Any) -> list[Check]:
     ]
 
 
-async def parameter_check(driver: Any, timeout_s: float = 5.0) -> list[Check]:
-    get = getattr(driver, "get_param", None)
-    if get is None:
+async def parameter_check(driver: Any, safety: Any = None, cruise_altitude_m: float = 5.0,
+                          timeout_s: float = 5.0) -> list[Check]:
+    """The autopilot's version and failsafe parameters (each read once) and, with ``safety``,
+    what the flight would set inside the envelope or refuse (``safety.autopilot_params``)."""
+    guard = AutopilotGuard(driver, safety or SafetyConfig(), cruise_altitude_m,
+                           timeout_s=timeout_s)
+    rep = await guard.read()
+    if not rep.available:
         return [("autopilot parameters", True, "this vehicle has no parameters to read")]
-    values, missing = {}, []
-    for name in PX4_FAILSAFE_PARAMS:
-        try:
-            async with asyncio.timeout(timeout_s):
-                values[name] = float(await get(name))
-        except Exception:  # noqa: BLE001 - reported below
-            missing.append(name)
-    text = ", ".join(f"{k}={v:g}" for k, v in values.items())
-    if missing:
-        text += f"; not answered: {', '.join(missing)}"
-    return [("autopilot parameters", bool(values), text or "none answered")]
+    text = ", ".join(f"{k}={v:g}" for k, v in rep.values.items())
+    if rep.missing:
+        text += f"; not on this autopilot: {', '.join(rep.missing)}"
+    out: list[Check] = [("autopilot parameters", bool(rep.values), text or "none answered")]
+    if rep.version:
+        out.append(("autopilot version", "error" not in rep.version,
+                    ", ".join(f"{k}={v}" for k, v in rep.version.items())))
+    if safety is not None:
+        refuse = guard.mode == "refuse"
+        out += [(f"autopilot parameter {c.name}", not refuse,
+                 f"{c.reason}: " + (f"refused ({c.envelope_key}; autopilot_params: refuse)"
+                                    if refuse else f"the flight sets {c.old:g} -> {c.new:g} "
+                                    "and restores it after")) for c in rep.changes]
+    return out
 
 
 async def dry_run_checks(asm: Any, say: Callable[[str], None]) -> list[Check]:
     checks = await camera_checks(asm.cameras)
     checks += vehicle_checks(asm.vehicle.state())
-    checks += await parameter_check(asm.driver)
+    cfg = asm.config
+    checks += await parameter_check(asm.driver, cfg.safety, cfg.mission.cruise_altitude_m)
     for name, ok, detail in checks:
         say(f"  [{'ok' if ok else 'FAIL'}] {name}: {detail}")
     return checks

@@ -3,8 +3,10 @@
 
 Commands come through a queue (``arm_takeoff``, ``start_offboard``, ``grasp``, ``final``);
 results go back as plain attributes the runner reads on the loop thread (``command_failed``,
-``offboard``, ``grasp_done``, ``finished``). Before the first command it aligns the autopilot's
-return height with the envelope and reads back its failsafe parameters.
+``offboard``, ``grasp_done``, ``finished``). Before the first command its
+:class:`~eaglemission.autopilot_guard.AutopilotGuard` reads the autopilot's failsafe
+parameters and sets those outside the envelope inside it (or refuses the flight); they are
+restored after landing.
 """
 
 from __future__ import annotations
@@ -12,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
-import math
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -21,10 +22,10 @@ from eaglemission.missions.guidance import Guidance
 from eaglemission.missions.log import MissionLog
 
 from eaglemission import errors
+from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import Clock
 from eaglemission.config import MissionFile, SafetyConfig
 from eaglemission.interfaces import Vehicle
-from eaglemission.names import PX4_FAILSAFE_PARAMS
 
 log = logging.getLogger(__name__)
 
@@ -62,17 +63,13 @@ def failsafe_param_warnings(values: dict[str, float], safety: SafetyConfig) -> l
     return out
 
 
-def return_altitude_m(cruise_altitude_m: float, safety: SafetyConfig) -> float:
-    """The return height inside the envelope: the cruise altitude, clamped into the band."""
-    return max(safety.min_altitude_m + 1.0, min(cruise_altitude_m, safety.max_altitude_m - 1.0))
-
-
 class Actuator:
     """Executes the mission's vehicle commands in order (one task)."""
 
     def __init__(self, cfg: MissionFile, params: ApproachConfig, vehicle: Vehicle, clock: Clock,
                  mission_log: MissionLog, guidance: Guidance,
-                 grasp_callback: Callable[[], Awaitable[Any]] | None = None) -> None:
+                 grasp_callback: Callable[[], Awaitable[Any]] | None = None,
+                 guard: AutopilotGuard | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
         self.vehicle, self.clock, self.log = vehicle, clock, mission_log
         self.guidance = guidance
@@ -88,7 +85,9 @@ class Actuator:
         self.settle_s = params.settle_timeout_s
         self.failsafe_params: dict[str, float] | None = None
         self.failsafe_warnings: list[str] = []
-        self._rtl_restore: float | None = None
+        self.guard = guard or AutopilotGuard(self._inner(), cfg.safety, self.m.cruise_altitude_m,
+                                             timeout_s=params.timeouts.command_s)
+        self.refused = ""
         self.on_grasp_done: Callable[[], None] | None = None
 
     def submit(self, name: str, arg: Any = None) -> None:
@@ -111,14 +110,16 @@ class Actuator:
 
     async def run(self) -> None:
         v = self.vehicle
-        await self.align_autopilot()
-        await self.read_failsafe_params()
+        await self.guard_autopilot()
         while not self.stopping:
             try:
                 name, arg = await asyncio.wait_for(self.queue.get(), timeout=0.5)
             except TimeoutError:
                 continue
             if name == "arm_takeoff":
+                if self.refused:  # never armed: the autopilot would leave the envelope
+                    self.command_failed = f"autopilot parameters: {self.refused}"
+                    continue
                 ok = await self.command("arm", v.arm) and await self.command(
                     "takeoff", lambda: v.takeoff(self.m.cruise_altitude_m))
                 if not ok:
@@ -185,63 +186,36 @@ class Actuator:
         else:
             await self.clock.sleep(2.0)
 
-    async def align_autopilot(self) -> None:
-        """Put the autopilot's own return height inside the envelope before the flight
-        (RTL_RETURN_ALT: PX4 returns at 30 m by default, above most missions' altitude band):
-        the cruise altitude, clamped into the band. Restored after the flight. Vehicles
-        without parameters are left alone."""
-        inner = self._inner()
-        get = getattr(inner, "get_param", None)
-        put = getattr(inner, "set_param", None)
-        if get is None or put is None:
-            return
-        want = return_altitude_m(self.m.cruise_altitude_m, self.cfg.safety)
-        try:
-            have = float(await asyncio.wait_for(get("RTL_RETURN_ALT"),
-                                                timeout=self.p.timeouts.command_s))
-            if abs(have - want) > 1e-3:
-                await asyncio.wait_for(put("RTL_RETURN_ALT", want),
-                                       timeout=self.p.timeouts.command_s)
-                self._rtl_restore = have
-            self.log.write("param_set", name="RTL_RETURN_ALT", was=have, now=want)
-        except (errors.VehicleError, TimeoutError) as exc:
-            self.log.write("param_set", name="RTL_RETURN_ALT", ok=False, error=str(exc))
-
-    async def restore_autopilot(self) -> None:
-        if self._rtl_restore is None:
-            return
-        put = getattr(self._inner(), "set_param", None)
-        if put is None:
-            return
-        try:
-            await asyncio.wait_for(put("RTL_RETURN_ALT", self._rtl_restore),
-                                   timeout=self.p.timeouts.command_s)
-            self.log.write("param_set", name="RTL_RETURN_ALT", now=self._rtl_restore,
-                           restored=True)
-        except (errors.VehicleError, TimeoutError) as exc:
-            self.log.write("param_set", name="RTL_RETURN_ALT", ok=False, restored=False,
-                           error=str(exc))
-        self._rtl_restore = None
-
-    async def read_failsafe_params(self) -> None:
-        """Read PX4's own failsafe parameters back when the vehicle offers ``get_param``."""
-        get = getattr(self._inner(), "get_param", None)
-        if get is None:
+    async def guard_autopilot(self) -> None:
+        """Read the autopilot's failsafe parameters, set those outside the envelope inside it
+        or refuse (:mod:`eaglemission.autopilot_guard`); one ``autopilot_params`` record, one
+        ``param_set`` per change and the old values in ``failsafe_params``."""
+        rep = await self.guard.apply()
+        if not rep.available:
             self.log.write("failsafe_params", available=False)
             return
-        values: dict[str, float] = {}
-        for name in PX4_FAILSAFE_PARAMS:
-            try:
-                value = float(await asyncio.wait_for(get(name),
-                                                     timeout=self.p.timeouts.command_s))
-            except Exception as exc:  # noqa: BLE001 - a missing param is reported, not fatal
-                log.debug("param %s: %s", name, exc)
-                continue
-            if math.isfinite(value):
-                values[name] = value
-        self.failsafe_params = values
-        warnings = failsafe_param_warnings(values, self.cfg.safety)
+        self.failsafe_params = dict(rep.values)
+        self.log.write("autopilot_params", **rep.record())
+        for c in rep.set_ok:
+            self.log.write("param_set", name=c.name, was=c.old, now=c.new,
+                           envelope_key=c.envelope_key, reason=c.reason)
+        if rep.missing:
+            self.failsafe_warnings.append("not on this autopilot (read once): "
+                                          + ", ".join(sorted(rep.missing)))
+        if rep.refused:
+            self.refused = rep.refused
+            self.failsafe_warnings.append(f"refused: {rep.refused}")
+            log.error("autopilot parameters: %s", rep.refused)
+        # the values as PX4 will fly them (after the sets), for the report-only warnings
+        flown = rep.values | {c.name: c.new for c in rep.set_ok}
+        warnings = failsafe_param_warnings(flown, self.cfg.safety)
         self.failsafe_warnings.extend(warnings)
-        self.log.write("failsafe_params", available=True, values=values, warnings=warnings)
+        self.log.write("failsafe_params", available=True, values=rep.values, flown=flown,
+                       missing=sorted(rep.missing), warnings=warnings)
         for w in warnings:
             log.warning("PX4 failsafe parameters: %s", w)
+
+    async def restore_autopilot(self) -> None:
+        """Restore what :meth:`guard_autopilot` set (after landing; idempotent)."""
+        for r in await self.guard.restore(in_air=self.vehicle.state().in_air):
+            self.log.write("param_set", **r)

@@ -181,7 +181,7 @@ class ApproachMission:
                                grasp_callback=h.grasp_callback, on_frame=h.on_frame,
                                on_telemetry=on_telemetry, record_all=h.record_all,
                                on_processed=None if h.recorder is None else h.recorder.frame,
-                               on_state=h.on_state)
+                               on_state=h.on_state, autopilot_guard=p.autopilot_guard)
         self.runner = runner
         if self._interrupt is not None:
             runner.interrupt(*self._interrupt)

@@ -55,6 +55,7 @@ from eaglemission.missions.tracking import TargetTracking
 from eaglemission.missions.views import project_target
 
 from eaglemission import errors
+from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import Clock, run_blocking
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
@@ -81,9 +82,9 @@ class MissionRunner:
     coarse, fine : estimators; fitter : the plane fitter; tracker : the appearance tracker
     clock : the mission clock; mission_log : JSON-lines log
     grasp_callback : awaited in GRASP_READY when ``mission.grasp_action == "callback"``
-    on_frame : called (loop thread) with every grabbed frame (recording)
-    on_processed : called (loop thread) with every frame perception processed (MCAP)
+    on_frame, on_processed : called (loop thread) with every grabbed / processed frame
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
+    autopilot_guard : the assembly's (applied) autopilot-parameter guard; None: its own
     """
 
     def __init__(self, cfg: MissionFile, params: ApproachConfig, *, vehicle: Vehicle,
@@ -93,10 +94,10 @@ class MissionRunner:
                  tracker: Tracker | None = None,
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
-                 on_telemetry: Callable[[VehicleState], None] | None = None,
-                 record_all: bool = False,
+                 on_telemetry: Callable[[VehicleState], None] | None = None, record_all: bool = False,
                  on_processed: Callable[[Frame], None] | None = None,
-                 on_state: Callable[[float, str, str, str], None] | None = None) -> None:
+                 on_state: Callable[[float, str, str, str], None] | None = None,
+                 autopilot_guard: AutopilotGuard | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
         self.vehicle: SafeVehicle = (vehicle if isinstance(vehicle, SafeVehicle)
                                      else SafeVehicle(vehicle, cfg.safety, clock=clock))
@@ -110,7 +111,7 @@ class MissionRunner:
         self.track = TargetTracking(cfg, params, self.models, mission_log)
         self.guidance = gd.Guidance(gd.GuidanceConfig.of(cfg, params))
         self.actuator = Actuator(cfg, params, self.vehicle, clock, mission_log, self.guidance,
-                                 grasp_callback)
+                                 grasp_callback, guard=autopilot_guard)
         self.actuator.on_grasp_done = self._wake_machine_now
         self._interrupt: tuple[str, FinalAction] | None = None
         self._stopping = False

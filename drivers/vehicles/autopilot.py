@@ -45,6 +45,7 @@ from eaglemission.drivers.vehicles.autopilot_params import (
     FailsafeAction,
     LandedState,
     ModeSource,
+    rtl_altitude_m,
 )
 from eaglemission.drivers.vehicles.dynamics import MulticopterDynamics
 
@@ -309,16 +310,16 @@ class Autopilot:
             dyn.command_hold(immediate=True)
 
     def start_rtl(self, source: ModeSource) -> None:
-        """RTL: climb to RTL_RETURN_ALT (or stay higher), return at cruise speed, land."""
+        """RTL: climb to ``rtl_altitude_m`` at MPC_Z_V_AUTO_UP, return at cruise speed, land."""
         dyn = self.dyn
-        alt = -dyn.estimated_position()[2]
-        self._rtl_alt_m = max(alt, self.params.rtl_return_altitude_m)
+        e = dyn.estimated_position()
+        self._rtl_alt_m = rtl_altitude_m(self.params, -e[2], math.hypot(e[0], e[1]))
         self.rtl_phase = "climb"
         self.set_mode(FlightMode.RETURN_TO_LAUNCH, source)
         self.status(f"RTL: start return at {self.params.home_altitude_amsl_m + self._rtl_alt_m:.0f} m "
                     f"({self._rtl_alt_m:.0f} m above destination)")
-        e = dyn.estimated_position()
-        dyn.command_position(Setpoint(e[0], e[1], -self._rtl_alt_m, dyn.yaw_deg), immediate=True)
+        dyn.command_position(Setpoint(e[0], e[1], -self._rtl_alt_m, dyn.yaw_deg), immediate=True,
+                             **self.params.auto_vertical_speeds())
 
     def failsafe(self, reason: str, action: FailsafeAction) -> None:
         dyn = self.dyn
@@ -446,8 +447,8 @@ class Autopilot:
             if -e[2] >= self._rtl_alt_m - 0.5:
                 self.rtl_phase = "return"
                 yaw = math.degrees(math.atan2(-e[1], -e[0])) if math.hypot(e[0], e[1]) > 1.0 else dyn.yaw_deg
-                dyn.command_position(Setpoint(0.0, 0.0, -self._rtl_alt_m, yaw),
-                                     max_speed_mps=self.params.cruise_speed_mps, immediate=True)
+                dyn.command_position(Setpoint(0.0, 0.0, -self._rtl_alt_m, yaw), immediate=True,
+                                     **self.params.auto_vertical_speeds(rtl_return=True))
         elif self.rtl_phase == "return":
             if (math.hypot(e[0], e[1]) <= 1.0
                     and math.hypot(dyn.vn, dyn.ve) < self.params.rtl_land_max_speed_mps):

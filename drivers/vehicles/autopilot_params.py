@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
@@ -89,6 +90,10 @@ class AutopilotParams:
     offboard_loss_land_after_s: float | None = None  # hold, then land after this long
     position_no_rc_descent_mps: float = 0.65  # recorded b: Position mode without RC sinks
     rtl_return_altitude_m: float = 10.0  # [RTL_RETURN_ALT]
+    rtl_descend_altitude_m: float = 0.0  # [RTL_DESCEND_ALT] PX4 returns at least this high
+    rtl_cone_half_angle_deg: float = 0.0  # [RTL_CONE_ANG] 0: no cone (sim); emu 45
+    auto_up_speed_mps: float | None = None  # [MPC_Z_V_AUTO_UP] RTL climb; None: the model's
+    auto_down_speed_mps: float | None = None  # [MPC_Z_V_AUTO_DN] RTL descent to land
     rtl_land_max_speed_mps: float = 0.5  # RTL lands within 1 m of home below this speed; emu inf
     mission_vertical_acceptance_m: float = 0.8  # [NAV_MC_ALT_RAD]
     mission_acceptance_radius_m: float = 2.0  # [NAV_ACC_RAD] items without their own
@@ -106,6 +111,23 @@ class AutopilotParams:
     battery_emergency_action: FailsafeAction | None = FailsafeAction.LAND
     battery_warnings: bool = False  # emu True: "Low battery level" etc. status texts
     battery_check_in_flight_only: bool = True  # emu False: levels tracked on the ground too
+
+    def auto_vertical_speeds(self, *, rtl_return: bool = False) -> dict[str, float | None]:
+        """The climb / descent limits of autopilot-flown moves (RTL) for ``command_position``
+        (``rtl_return``: with the cruise speed of the return leg)."""
+        out = {"max_up_speed_mps": self.auto_up_speed_mps,
+               "max_down_speed_mps": self.auto_down_speed_mps}
+        return out | {"max_speed_mps": self.cruise_speed_mps} if rtl_return else out
+
+
+def rtl_altitude_m(p: AutopilotParams, altitude_m: float, distance_m: float) -> float:
+    """PX4's return height: RTL_RETURN_ALT, lowered inside the RTL_CONE_ANG cone over home
+    (``distance / tan(angle)``), never below RTL_DESCEND_ALT nor the current height
+    (recorded f1: 30 / 10 m / 45 deg at 9.9 m from home -> 10 m; f2: 8 / 4 m -> 8 m)."""
+    alt = p.rtl_return_altitude_m
+    if 0.0 < p.rtl_cone_half_angle_deg < 90.0:
+        alt = min(alt, distance_m / math.tan(math.radians(p.rtl_cone_half_angle_deg)))
+    return max(altitude_m, p.rtl_descend_altitude_m, alt)
 
 
 class AutopilotListener(Protocol):

@@ -172,7 +172,8 @@ def _autopilot_version(e: Px4Emulator) -> Any:
             | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
             | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
     return M.MAVLink_autopilot_version_message(
-        caps, 0x011000FF, 0, 0, 0, [0x65, 0x6D, 0x75, 0, 0, 0, 0, 0], [0] * 8, [0] * 8,
+        caps, px4.flight_sw_version(), px4.flight_sw_version(), 0, 1,
+        px4.custom_version_bytes(), px4.custom_version_bytes(), [0] * 8,
         0, 0, 0x4541474C45, [0] * 18)
 
 

@@ -26,7 +26,7 @@ from eaglemission.errors import TimeoutError_, VehicleError
 log = logging.getLogger(__name__)
 
 PLUGINS = ("Telemetry", "Action", "Offboard", "Mission", "Param", "Gripper", "Geofence",
-           "MavlinkDirect")
+           "MavlinkDirect", "Info")
 """The MAVSDK plugins the driver creates (all at once: plugins only see later messages)."""
 
 

@@ -51,7 +51,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from eaglemission.drivers.vehicles import mavsdk_arming
+from eaglemission.drivers.vehicles import mavsdk_arming, mavsdk_params
 from eaglemission.drivers.vehicles.events import (
     EVENT_GRIPPER,
     EVENT_LINK,
@@ -451,15 +451,11 @@ class MavsdkVehicle:
 
     async def get_param(self, name: str) -> float:
         """Read an autopilot parameter (float, else int), e.g. PX4's COM_OF_LOSS_T."""
-        self._require("get_param()")
-        p = self.plugins["Param"]
-        try:
-            return float(await self.bounded("get_param()", lambda: p.get_param_float(name),
-                                             params=name))
-        except VehicleError as exc:
-            if exc.result != "WRONG_TYPE":
-                raise
-        return float(await self.bounded("get_param()", lambda: p.get_param_int(name), params=name))
+        return await mavsdk_params.get_param(self, name)
+
+    async def autopilot_version(self) -> dict[str, Any]:
+        """The autopilot's software version and git hash (MAVSDK Info: AUTOPILOT_VERSION)."""
+        return await mavsdk_params.autopilot_version(self)
 
     async def set_param(self, name: str, value: float) -> None:
         """Write a float parameter (ints: :meth:`set_param_int`)."""

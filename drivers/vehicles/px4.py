@@ -95,18 +95,38 @@ def decode_param(raw: float, param_type: int) -> float:
     return float(raw)
 
 
+PX4_VERSION = (1, 16, 0)
+PX4_GIT_HASH = "6ea3539157ca358c70a515878b77077af7d4611d"
+"""The PX4 release the emulator answers AUTOPILOT_VERSION as (recorded: v1.16.0 at this
+commit; flight_sw_version 0x011000FF, flight_custom_version the hash's first bytes)."""
+
+
+def flight_sw_version(version: tuple[int, int, int] = PX4_VERSION) -> int:
+    """AUTOPILOT_VERSION.flight_sw_version: major, minor, patch, 0xFF (official release)."""
+    return (version[0] << 24) | (version[1] << 16) | (version[2] << 8) | 0xFF
+
+
+def custom_version_bytes(git_hash: str = PX4_GIT_HASH) -> list[int]:
+    """AUTOPILOT_VERSION.flight_custom_version as PX4 sends it: the hash's first 5 bytes,
+    most significant last (recorded: [0, 0, 0, 0x57, 0x91, 0x53, 0xa3, 0x6e])."""
+    head = bytes.fromhex(git_hash[:10])
+    return [0, 0, 0, *reversed(head)]
+
+
 # The parameters the emulator models (PX4 v1.16 defaults; MIS_TAKEOFF_ALT etc. are what MAVSDK
 # touches, COM_* are the failsafe settings a mission should read back before flying).
 DEFAULT_PARAMS: dict[str, tuple[float, int]] = {
     "MIS_TAKEOFF_ALT": (2.5, PARAM_REAL32),
-    "RTL_RETURN_ALT": (60.0, PARAM_REAL32),
-    "RTL_DESCEND_ALT": (30.0, PARAM_REAL32),
+    # RTL heights as PX4 v1.16's multicopter airframes set them (sihsim_quadx, recorded d-i:
+    # 30 / 10 m; the parameters' own defaults are 60 / 30 m)
+    "RTL_RETURN_ALT": (30.0, PARAM_REAL32),
+    "RTL_DESCEND_ALT": (10.0, PARAM_REAL32),
     "COM_OF_LOSS_T": (1.0, PARAM_REAL32),
     "COM_OBL_RC_ACT": (0, PARAM_INT32),  # 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold
     "COM_DL_LOSS_T": (10.0, PARAM_REAL32),
     "NAV_DLL_ACT": (0, PARAM_INT32),  # 0 none, 1 hold, 2 return, 3 land
     "NAV_RCL_ACT": (2, PARAM_INT32),  # RC loss: 2 return (reported only: no RC is emulated)
-    "COM_RC_IN_MODE": (3, PARAM_INT32),  # reported only
+    "COM_RC_IN_MODE": (1, PARAM_INT32),  # reported only (recorded d-i: 1, MAVLink only)
     "GF_ACTION": (2, PARAM_INT32),  # geofence breach: 2 hold (reported only: no PX4 geofence)
     "COM_DISARM_LAND": (2.0, PARAM_REAL32),
     "COM_LOW_BAT_ACT": (0, PARAM_INT32),  # 0 warning, 2 land, 3 return at critical

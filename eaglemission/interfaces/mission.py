@@ -42,6 +42,9 @@ class FlightParts:
     tracker: Tracker | None = None
     truth: GroundTruth | None = None
     realtime: bool = False
+    autopilot_guard: Any = None
+    """The assembly's :class:`~eaglemission.autopilot_guard.AutopilotGuard` (already applied:
+    the mission logs its report and restores after landing); None: the mission makes its own."""
 
 
 @runtime_checkable
