@@ -28,9 +28,10 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from eaglemission.geometry import order_corners
 from eaglemission.types import Detection, Saliency, TargetPrior
 
 
@@ -60,35 +61,6 @@ class RegionsConfig(BaseModel):
         "drop regions whose MBR is more elongated than this (long / short side)"))
     max_detections: int = Field(5, ge=1, le=100)
     mbr_pixel_edges: bool = True
-
-
-# Ties in u + v closer than this (pixels) are broken by v (float noise from boxPoints).
-_TIE_PX = 1e-6
-
-
-def order_corners(corners: ArrayLike) -> NDArray[np.float64]:
-    """Order 4 corners clockwise on screen starting from the top-left one.
-
-    Parameters
-    ----------
-    corners : array_like of shape (4, 2)
-        ``(u, v)`` pixel coordinates (u right, v down) of a convex quadrilateral, any order.
-
-    Returns
-    -------
-    ndarray of shape (4, 2), float64
-        Clockwise on screen, first the corner with the smallest ``u + v`` (ties, within 1e-6
-        px: the smaller ``v``), as docs/conventions.md fixes.
-    """
-    c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    centre = c.mean(axis=0)
-    # On screen with v down, increasing atan2(v, u) turns clockwise.
-    ang = np.arctan2(c[:, 1] - centre[1], c[:, 0] - centre[0])
-    c = c[np.argsort(ang, kind="stable")]
-    s = c[:, 0] + c[:, 1]
-    candidates = np.flatnonzero(s <= s.min() + _TIE_PX)
-    start = int(candidates[np.argmin(c[candidates, 1])])
-    return np.roll(c, -start, axis=0)
 
 
 def to_uint8(saliency: Saliency, normalize: str = "none") -> NDArray[np.uint8]:

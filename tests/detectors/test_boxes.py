@@ -20,8 +20,8 @@ from eaglemission.detectors.boxes import (
     score_frame,
     spread,
 )
-from eaglemission.detectors.regions import order_corners
 
+from eaglemission.geometry import order_corners
 from eaglemission.types import Detection, DetectionResult
 
 

@@ -13,12 +13,12 @@ from eaglemission.detectors.regions import (
     binarize,
     find_regions,
     long_side_angle_deg,
-    order_corners,
     prior_accepts,
     to_uint8,
 )
 
 from eaglemission.errors import InputError
+from eaglemission.geometry import order_corners
 from eaglemission.types import Frame, TargetPrior
 
 
