@@ -31,7 +31,9 @@ from eaglemission.drivers.vehicles.mavlink_emulator import (
     Px4Emulator,
     mavlink,
     parse_link,
+    stream_rates_hz,
 )
+from eaglemission.drivers.vehicles.emulator_messages import Streams
 
 from eaglemission.errors import ConfigError
 from eaglemission.types import FlightMode, Setpoint, Waypoint
@@ -308,22 +310,48 @@ async def test_scenario_b_setpoint_stream_stops_like_px4(px4_tlogs: Path) -> Non
 # ---------------------------------------------------------------------------------------------
 # Rates
 # ---------------------------------------------------------------------------------------------
-def test_stream_rates_match_px4_onboard_profile(px4_tlogs: Path, raw_emulator: Any) -> None:
-    emu, client = raw_emulator
+RATE_CHECKED = ("ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED",
+                "GPS_RAW_INT", "SYS_STATUS", "HEARTBEAT", "MISSION_CURRENT")
+
+
+def _recorded_rates_hz(px4_tlogs: Path) -> dict[str, float]:
     ref = recorded(px4_tlogs, "a")
     span = scenario(px4_tlogs, "a")[0][-1][0]
-    ref_hz = {k: n / span for k, n in Counter(m.get_type() for m in ref).items()}
+    return {k: n / span for k, n in Counter(m.get_type() for m in ref).items()}
+
+
+def test_stream_schedule_matches_px4_onboard_profile(px4_tlogs: Path) -> None:
+    """The schedule itself, on a virtual wall clock ticking at ``tick_hz``: what the emulator
+    sends per second when its loop keeps time, against PX4's recorded rates (scenario a)."""
+    cfg = EmulatorConfig()
+    rates = stream_rates_hz(cfg)
+    streams = Streams(rates)
+    ticks = int(20.0 * cfg.tick_hz)
+    sent: Counter[str] = Counter()
+    for k in range(ticks):
+        sent.update(streams.due(k / cfg.tick_hz))
+    span_s = ticks / cfg.tick_hz
+    ref_hz = _recorded_rates_hz(px4_tlogs)
+    for name in RATE_CHECKED:
+        ref = ref_hz[name] * (cfg.speedup if name == "HEARTBEAT" else 1.0)
+        assert sent[name] / span_s == pytest.approx(ref, rel=0.1, abs=0.1), (name, sent[name])
+
+
+def test_stream_rates_delivered_live(px4_tlogs: Path, raw_emulator: Any) -> None:
+    """The running emulator over a real byte link. Its Python loop may fall behind on a loaded
+    machine (CI measured ATTITUDE at 64 of 100 Hz) and then drops, as PX4 does, rather than
+    bursts: every stream arrives, none faster than PX4; the exact rates are the schedule test's."""
+    emu, client = raw_emulator
+    ref_hz = _recorded_rates_hz(px4_tlogs)
     time.sleep(2.0)
     t = [ts for ts, _ in client.rx]
     ours = Counter(m.get_type() for _, m in client.rx)
     window = t[-1] - t[0]
-    for name in ("ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED",
-                 "GPS_RAW_INT", "SYS_STATUS", "HEARTBEAT", "MISSION_CURRENT"):
+    for name in RATE_CHECKED:
         hz = ours[name] / window
         # HEARTBEAT runs on the emulator's clock (1 Hz of emulator time), the others in wall time
         ref = ref_hz[name] * (emu.config.speedup if name == "HEARTBEAT" else 1.0)
-        # a loaded 2-core CI machine may slow the emulator a little; never faster than PX4
-        assert 0.7 * ref <= hz <= 1.15 * ref + 0.5, (name, hz, ref)
+        assert 0.3 * ref <= hz <= 1.15 * ref + 0.5, (name, hz, ref)
     # EXTENDED_SYS_STATE: 5 Hz until MAVSDK asks for 1 Hz (SET_MESSAGE_INTERVAL 245, 1 s)
     assert ours["EXTENDED_SYS_STATE"] / window == pytest.approx(5.0, rel=0.3)
     client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, 245, 1_000_000)
