@@ -198,6 +198,15 @@ class SafetyConfig(StrictModel):
     max_horizontal_speed_mps: PosFloat = 5.0
     max_vertical_speed_mps: PosFloat = 2.0
     on_violation: Literal["clamp", "refuse"] = "clamp"
+    altitude_reference: Literal["estimate", "rangefinder"] = "rangefinder"
+    """What the altitude band is held on. ``rangefinder``: while the vehicle reports a fresh
+    downward range (tilt <= 30 deg), on the height above the ground under the vehicle (range x
+    cos tilt), the altitude estimate otherwise. PX4's EKF is 0.2-0.5 m off vertically near the
+    ground (recorded: a hold 0.7 m up by the estimate sat on the ground for 13 s), more than the
+    band's margin. ``estimate``: always the altitude estimate (relative to home)."""
+    rangefinder_max_correction_m: Annotated[float, Field(gt=0, le=10)] = 1.0
+    """A range that disagrees with the altitude estimate by more than this is not trusted (the
+    band falls back to the estimate and the event is logged)."""
     link_loss_timeout_s: PosFloat = 1.5
     link_loss_action: SafeAction = "return"
     gps_loss_action: SafeAction = "land"

@@ -41,7 +41,7 @@ from typing import Any
 from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.config import SafetyConfig
 from eaglemission.errors import SafetyViolation
-from eaglemission.geometry import geodetic_to_ned, ned_to_geodetic
+from eaglemission.geometry import down_axis_cos_tilt, geodetic_to_ned, ned_to_geodetic
 from eaglemission.interfaces import Vehicle
 from eaglemission.safety_geometry import inside_geofence, point_in_polygon
 from eaglemission.types import (
@@ -263,7 +263,7 @@ class SafeVehicle:
         self._events: list[VehicleEvent] = []
         self._last_logged: dict[str, tuple[tuple[str, str, str], int]] = {}
         self._last_problem: str | None = None
-        self._clamp_cache: tuple[tuple[float, float, float], tuple[float, float, float], str | None] | None = None
+        self._clamp_cache: tuple[tuple[float, float, float, float], tuple[float, float, float], str | None] | None = None
         self._carrot: tuple[float, float, float] | None = None  # NED of the last step sent
         self._carrot_ns = 0
         self.last_requested: Setpoint | None = None
@@ -312,17 +312,46 @@ class SafeVehicle:
                                   "sending geodetic targets")
         return home
 
+    def ground_offset_m(self, s: VehicleState | None = None) -> float:
+        """What to add to an estimated altitude (relative to home) to get the height above the
+        ground under the vehicle: ``range x cos tilt - estimated altitude`` with
+        ``altitude_reference: rangefinder`` and a trusted reading, else 0 (docs/safety.md)."""
+        if self.safety.altitude_reference != "rangefinder":
+            return 0.0
+        if s is None:
+            s = self._inner.state()
+        d = s.distance_to_ground_m
+        if d is None or not math.isfinite(d) or d <= 0:
+            return 0.0
+        cos_tilt = down_axis_cos_tilt(s.attitude_q)
+        if not math.isfinite(cos_tilt) or cos_tilt < math.cos(math.radians(30.0)):
+            return 0.0
+        offset = d * cos_tilt + s.position_ned_m[2]  # height above ground - (-down)
+        if not math.isfinite(offset):
+            return 0.0
+        if abs(offset) > self.safety.rangefinder_max_correction_m:
+            self._intervene("altitude_reference", f"range {d:.2f} m disagrees with the altitude "
+                            f"estimate {-s.position_ned_m[2]:.2f} m by {offset:+.2f} m: the band "
+                            "uses the estimate", {"requested": round(d, 2), "result": None},
+                            refuse=False)
+            return 0.0
+        return offset
+
     def _check_point(self, origin: str, north_m: float, east_m: float, altitude_m: float,
-                     start: tuple[float, float] | None, params: Any) -> tuple[float, float, float]:
-        """Clamp (or refuse) a target; ``start`` is where the straight path to it begins."""
+                     start: tuple[float, float] | None, params: Any, *,
+                     ground_offset_m: float = 0.0) -> tuple[float, float, float]:
+        """Clamp (or refuse) a target; ``start`` is where the straight path to it begins;
+        ``ground_offset_m`` turns its estimated altitude into height above the ground."""
         env = self.envelope
         n, e, alt = north_m, east_m, altitude_m
         problems: list[str] = []
-        if not env.alt_ok(alt):
-            problems.append(f"altitude {alt:.2f} m outside [{env.min_alt_m:.2f}, {env.max_alt_m:.2f}] m "
+        agl = alt + ground_offset_m
+        if not env.alt_ok(agl):
+            ref = "" if ground_offset_m == 0.0 else f" above the ground ({ground_offset_m:+.2f} m by the rangefinder)"
+            problems.append(f"altitude {agl:.2f} m{ref} outside [{env.min_alt_m:.2f}, {env.max_alt_m:.2f}] m "
                             f"(band {self.safety.min_altitude_m:g}..{self.safety.max_altitude_m:g} m "
                             f"minus margin)")
-            alt = env.clamp_alt(alt)
+            alt = env.clamp_alt(agl) - ground_offset_m
         if not env.safe_h(n, e):
             problems.append(f"({n:.2f}, {e:.2f}) m is outside the geofence or within "
                             f"{env.margin_m:.2f} m of it")
@@ -462,7 +491,8 @@ class SafeVehicle:
         of travel from the current position."""
         env = self.envelope
         self.last_requested = requested
-        req = (requested.north_m, requested.east_m, requested.down_m)
+        off = round(self.ground_offset_m(s), 2)  # cm steps: the cache survives range noise
+        req = (requested.north_m, requested.east_m, requested.down_m, off)
         cached = self._clamp_cache
         if cached is not None and cached[0] == req:  # the same target streamed at 20 Hz
             n, e, alt = cached[1]
@@ -473,7 +503,8 @@ class SafeVehicle:
         else:
             before = len(self._events)
             self._clamp_cache = None
-            n, e, alt = self._check_point(origin, req[0], req[1], -req[2], None, (requested,))
+            n, e, alt = self._check_point(origin, req[0], req[1], -req[2], None, (requested,),
+                                          ground_offset_m=off)
             text = self._last_problem if len(self._events) > before or (n, e, alt) != (req[0], req[1], -req[2]) else None
             self._clamp_cache = (req, (n, e, alt), text)
         goal = (n, e, -alt)

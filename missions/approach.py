@@ -227,6 +227,9 @@ class Snapshot:
     goal_inside_geofence: bool = True
     camera_failed: bool = False
     pilot_override: bool = False
+    autopilot_failover: str = ""
+    """The autopilot acted on its own while the link was down (the vehicle's ``failover``
+    event, e.g. PX4's offboard loss): what it did, "" if nothing."""
     command_failed: str = ""
     interrupt_reason: str = ""
     """The operator asked for a stop (Ctrl-C / SIGTERM): the reason, "" if not."""
@@ -333,7 +336,7 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
              params: ApproachConfig) -> Abort | None:
     """The failsafe that applies in ``state`` (pure; first match in priority order).
 
-    Priority: the operator's interrupt, link loss, GPS loss, low battery, pilot mode change, camera failure, geofence,
+    Priority: the operator's interrupt, link loss, autopilot failover, GPS loss, low battery, pilot mode change, camera failure, geofence,
     refused command, state timeout, route end without target. On the ground (PREFLIGHT) the
     action is ``none``: the vehicle is never armed.
     """
@@ -348,6 +351,9 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
         return Abort(s.interrupt_reason, act(s.interrupt_action))
     if s.link_lost_s > s.link_loss_timeout_s and not on_ground:
         return Abort(f"link lost for {s.link_lost_s:.1f} s", act(safety.link_loss_action))
+    if s.autopilot_failover and not on_ground:  # it moved on its own: do not carry on
+        return Abort(f"autopilot failover during a link loss: {s.autopilot_failover}",
+                     act(safety.link_loss_action))
     if not s.gps_ok and not on_ground:
         return Abort("GPS lost", act(safety.gps_loss_action))
     if s.battery_remaining < s.low_battery_fraction:

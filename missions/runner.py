@@ -354,7 +354,7 @@ class MissionRunner:
             battery_remaining=vs.battery_remaining,
             low_battery_fraction=self.cfg.safety.low_battery_fraction,
             goal_inside_geofence=self._goal_ok, camera_failed=camera_failed,
-            pilot_override=pilot, command_failed=act.command_failed,
+            pilot_override=pilot, autopilot_failover=self.telemetry.failover, command_failed=act.command_failed,
             interrupt_reason=self._interrupt[0] if self._interrupt else "",
             interrupt_action=self._interrupt[1] if self._interrupt else "return")
 

@@ -28,6 +28,7 @@ class TelemetryWatch:
         self.times: list[int] = []
         self.link_lost_since_ns: int | None = None
         self.events_seen = 0
+        self.failover = ""  # the vehicle's last ``failover`` event: PX4 acted while we were cut off
         self.stopping = False
 
     def rate_hz(self) -> float:
@@ -70,6 +71,8 @@ class TelemetryWatch:
                                plane_offset_std_m=round(plane.std_m(vs.timestamp_ns), 4))
             events = self.vehicle.events()
             for ev in list(events)[self.events_seen:]:
+                if ev.kind == "failover":
+                    self.failover = ev.text
                 self.log.write("event", source="vehicle", event_kind=ev.kind, text=ev.text,
                                data=ev.data, event_t_ns=ev.timestamp_ns)
             self.events_seen = len(events)

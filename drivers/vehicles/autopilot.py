@@ -79,6 +79,7 @@ class Autopilot:
         self.setpoint_velocity: tuple[XYZ, float | None] | None = None  # ...or velocity + yaw
         self.setpoint_ns = 0
         self.offboard_signal_grace: Callable[[], bool] | None = None  # emulator: wall-time guard
+        self.offboard_failover = False  # in an offboard-loss failsafe the signal's return clears
         self._taking_off = False  # a climb from the ground (MAV_LANDED_STATE_TAKEOFF)
         self._takeoff_alt_m = 0.0
         self._takeoff_go_ns = 0
@@ -282,6 +283,7 @@ class Autopilot:
         """Position / Altitude / Manual... by a ground station (no RC input: PX4 sinks) or a pilot
         (sticks centred: holds)."""
         self.manual_input = source == "pilot"
+        self.offboard_failover = False  # someone chose another mode: the user's intent changed
         if source == "command":
             self.offboard_active = False
         self.set_mode(mode, source)
@@ -322,26 +324,7 @@ class Autopilot:
                              **self.params.auto_vertical_speeds())
 
     def failsafe(self, reason: str, action: FailsafeAction) -> None:
-        dyn = self.dyn
-        self.failsafe_active = True
-        self.status("Failsafe activated", severity="critical")
-        self.listener.on_failsafe(reason, action)
-        if action == FailsafeAction.HOLD:
-            self.set_mode(FlightMode.HOLD, "failsafe")
-            dyn.command_hold(immediate=True)
-        elif action == FailsafeAction.LAND:
-            self.set_mode(FlightMode.LAND, "failsafe")
-            dyn.command_land(immediate=True)
-        elif action == FailsafeAction.RETURN:
-            self.start_rtl("failsafe")
-        elif action in MANUAL_ACTION_MODES:
-            # PX4 without RC (COM_OBL_RC_ACT=0, recorded b): the mode cannot run its flight
-            # task and the vehicle descends (~0.65 m/s) until it lands and disarms.
-            self.manual_input = False
-            self.set_mode(MANUAL_ACTION_MODES[action], "failsafe")
-            dyn.command_velocity((0.0, 0.0, self.params.position_no_rc_descent_mps), immediate=True)
-        else:
-            self.disarm("Disarmed by failsafe")
+        apply_failsafe(self, reason, action)
 
     def gps_loss(self, duration_s: float) -> bool:
         """No GPS for ``duration_s`` (extends a loss under way); True when it starts now."""
@@ -371,7 +354,18 @@ class Autopilot:
 
     def _by_command(self) -> None:
         self.offboard_active = False
+        self.offboard_failover = False
         self.manual_input = False
+
+    def _offboard_signal_back(self) -> None:
+        """PX4 (recorded i): setpoints arriving again clear the offboard-loss failsafe and it
+        goes straight back to OFFBOARD (the user's mode), with no report a client would see
+        other than the next HEARTBEAT."""
+        self.offboard_failover = False
+        self.failsafe_active = False
+        self.set_mode(FlightMode.OFFBOARD, "autopilot")
+        self.manual_input = False
+        self._command_offboard()
 
     def _command_offboard(self) -> None:
         """PX4 flies an offboard position setpoint at its own maximum speed."""
@@ -391,6 +385,8 @@ class Autopilot:
         self.power.step()
         if self.armed:
             self.land_detector.step(t)
+        if self.armed and self.offboard_failover and self.offboard_signal():
+            self._offboard_signal_back()
         if self.armed:
             mode = self.mode
             if mode == FlightMode.TAKEOFF:
@@ -403,6 +399,7 @@ class Autopilot:
                 if not self.offboard_signal():
                     p = self.params
                     self.failsafe("Offboard setpoints lost", p.offboard_loss_action)
+                    self.offboard_failover = self.mode != FlightMode.OFFBOARD
                     if (p.offboard_loss_action == FailsafeAction.HOLD
                             and p.offboard_loss_land_after_s is not None):
                         self._failsafe_hold_until_ns = t + int(round(p.offboard_loss_land_after_s * 1e9))
@@ -455,3 +452,27 @@ class Autopilot:
                 self.rtl_phase = "land"
                 self.status("RTL: land at destination")
                 dyn.command_land(immediate=True)
+
+
+def apply_failsafe(ap: Autopilot, reason: str, action: FailsafeAction) -> None:
+    """PX4's failsafe ``action`` (its mode, what the vehicle then does)."""
+    dyn = ap.dyn
+    ap.failsafe_active = True
+    ap.status("Failsafe activated", severity="critical")
+    ap.listener.on_failsafe(reason, action)
+    if action == FailsafeAction.HOLD:
+        ap.set_mode(FlightMode.HOLD, "failsafe")
+        dyn.command_hold(immediate=True)
+    elif action == FailsafeAction.LAND:
+        ap.set_mode(FlightMode.LAND, "failsafe")
+        dyn.command_land(immediate=True)
+    elif action == FailsafeAction.RETURN:
+        ap.start_rtl("failsafe")
+    elif action in MANUAL_ACTION_MODES:
+        # PX4 without RC (COM_OBL_RC_ACT=0, recorded b): the mode cannot run its flight
+        # task and the vehicle descends (~0.65 m/s) until it lands and disarms.
+        ap.manual_input = False
+        ap.set_mode(MANUAL_ACTION_MODES[action], "failsafe")
+        dyn.command_velocity((0.0, 0.0, ap.params.position_no_rc_descent_mps), immediate=True)
+    else:
+        ap.disarm("Disarmed by failsafe")

@@ -9,5 +9,6 @@ EVENT_REFUSED = "refused"  # a command was refused; data: command, result
 EVENT_MISSION = "mission"  # a mission item was reached; data: index, total
 EVENT_GRIPPER = "gripper"  # grab / release; data: action
 EVENT_LINK = "link"  # link lost / regained; data: ok
+EVENT_FAILOVER = "failover"  # offboard setpoints lost longer than the autopilot allows; data: gap_s, offboard_loss_timeout_s
 EVENT_FAULT = "fault"  # a fault was injected (sim only); data: fault, duration_s
 EVENT_WATCHDOG = "watchdog"  # the offboard watchdog commanded HOLD; data: age_s

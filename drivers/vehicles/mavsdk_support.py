@@ -66,6 +66,10 @@ class MavsdkVehicleConfig(BaseModel):
     offboard_max_yaw_rate_degps: Annotated[float, Field(gt=0, le=360)] = 60.0
     watchdog_timeout_s: Annotated[float | None, Field(gt=0, le=10)] = None
     """Fresh-setpoint watchdog; None: ``safety.offboard_watchdog_s`` from the context, else 0.5."""
+    offboard_loss_timeout_s: Annotated[float | None, Field(gt=0, le=60)] = None
+    """The autopilot's offboard-loss timeout (PX4 COM_OF_LOSS_T); None: read at connect (1 s,
+    PX4's default, if it cannot be read). Telemetry silent longer than this while offboard
+    means the setpoints did not arrive either: a ``failover`` event (docs/vehicles.md)."""
     position_max_age_s: Annotated[float, Field(gt=0, le=10)] = 0.5
     """Offboard needs a local position sample at most this old."""
     gripper_instance: Annotated[int, Field(ge=0, le=255)] = 1

@@ -76,6 +76,7 @@ class MavsdkTelemetry:
         self.mav_flight_mode: Any = None  # mavsdk.plugins.telemetry.FlightMode
         self._event = event
         self._on_mode_hook = on_mode
+        self.on_gap: Callable[[float], None] | None = None  # (seconds between position samples)
 
     def start(self, telemetry: Any, mission: Any, now_ns: Callable[[], int],
               mav_flight_mode: Any) -> list[asyncio.Task[None]]:
@@ -132,6 +133,8 @@ class MavsdkTelemetry:
         p, v = d.position, d.velocity
         c.local_ned = (p.north_m, p.east_m, p.down_m)
         c.local_vel = (v.north_m_s, v.east_m_s, v.down_m_s)
+        if c.local_t_ns and self.on_gap is not None and t > c.local_t_ns:
+            self.on_gap((t - c.local_t_ns) * 1e-9)
         c.local_t_ns = c.last_sample_ns = t
         self._append_state(t)
 

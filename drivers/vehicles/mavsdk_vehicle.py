@@ -58,6 +58,7 @@ from eaglemission.drivers.vehicles.events import (
     EVENT_REFUSED,
     EVENT_STATUS,
 )
+from eaglemission.drivers.vehicles.failover_watch import PX4_DEFAULT_OFFBOARD_LOSS_S, FailoverWatch
 from eaglemission.drivers.vehicles.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.mavsdk_offboard import OffboardSession
 from eaglemission.drivers.vehicles.mavsdk_session import MavsdkSession
@@ -126,6 +127,9 @@ class MavsdkVehicle:
         self._now_ns: Callable[[], int] = time.monotonic_ns
         self._truth = HilTruth(self.telemetry.truth_flags) if cfg.ground_truth == "auto" else None
         self._truth_handle: Any = None
+        self.failover = FailoverWatch(lambda: self._offboard.active, self.event,
+                                      cfg.offboard_loss_timeout_s or PX4_DEFAULT_OFFBOARD_LOSS_S)
+        self.telemetry.on_gap = self.failover.on_gap
 
     # ------------------------------------------------------------------------------------------
     # lifetime
@@ -183,6 +187,8 @@ class MavsdkVehicle:
         self._offboard.watchdog.start()
         await self._request_rates()
         await mavsdk_arming.request_truth(self)
+        if cfg.offboard_loss_timeout_s is None:
+            await self.failover.read_timeout(self.get_param)
         await self.telemetry.wait_first(max(0.5, cfg.connect_timeout_s - (time.monotonic() - t0)))
         self.event(EVENT_LINK, f"connected to {cfg.url}", {"ok": True})
 

@@ -8,7 +8,8 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from eaglemission.drivers.vehicles.autopilot import FailsafeAction
-from eaglemission.drivers.vehicles.events import EVENT_FAULT, EVENT_LINK
+from eaglemission.drivers.vehicles.events import EVENT_FAILOVER, EVENT_FAULT, EVENT_LINK
+from eaglemission.drivers.vehicles.failover_watch import failover_data, failover_text
 
 from eaglemission.types import FlightMode, VehicleState
 
@@ -52,6 +53,17 @@ class SimulatedFaults:
             self._link_down_until_ns = None
             self.frozen_state = None
             v._event(EVENT_LINK, "Link regained", {"ok": True})
+            gap_s = (t - self._link_down_since_ns) * 1e-9
+            ap = v.autopilot
+            timeout_s = ap.params.offboard_loss_timeout_s
+            if ap.offboard_failover and ap.offboard_active and ap.setpoint is not None:
+                # the client's stream never stopped (MAVSDK resends, unaware of the failover):
+                # its next setpoint reaches PX4 ~10 ms after the outage, before any HEARTBEAT
+                # reaches the client, and PX4 goes straight back to OFFBOARD (recorded i)
+                ap.store_setpoint(ap.setpoint)
+            if ap.offboard_failover:  # reported as the mavsdk driver reports PX4's
+                v._event(EVENT_FAILOVER, failover_text(gap_s, timeout_s),
+                         failover_data(gap_s, timeout_s))
         elif (not self._link_failsafe_done and cfg.link_loss_action != "none"
               and t - self._link_down_since_ns >= cfg.link_loss_timeout_s * 1e9):
             self._link_failsafe_done = True

@@ -244,3 +244,52 @@ def test_true_trajectory_never_leaves_the_envelope(sc: Scenario) -> None:
     assert ex.below_min_altitude_m <= TOL_ALTITUDE_M, f"below the band by {ex.below_min_altitude_m:.3f} m"
     assert ex.horizontal_speed_excess_mps <= TOL_SPEED_MPS, ex
     assert ex.vertical_speed_excess_mps <= TOL_SPEED_MPS, ex
+
+
+# ---------------------------------------------------------------------------------------------
+# Altitude band on the rangefinder (PX4's EKF is 0.2-0.5 m off vertically near the ground)
+# ---------------------------------------------------------------------------------------------
+async def _low_hover(reference: str, seed: int) -> tuple[float, float, float]:
+    """(estimate's vertical error up, m; true height after a setpoint 1 m below the ground;
+    ground offset the envelope used), a vehicle whose altitude estimate is off by ~0.35 m."""
+    from eaglemission.drivers.vehicles.simulated import SimulatedVehicleConfig
+    cfg = SimulatedVehicleConfig(
+        seed=seed, rangefinder={"enabled": True, "noise_std_m": 0.01},  # type: ignore[arg-type]
+        dynamics={"estimate_vertical_std_m": 0.35, "estimate_max_error_m": 0.45,  # type: ignore[arg-type]
+                  "estimate_correlation_time_s": 600.0})
+    clock = ManualClock()
+    sim = SimulatedVehicle(cfg, clock=clock, simulation=SyntheticWorldConfig(seed=seed))
+    safe = SafeVehicle(sim, _safety(altitude_reference=reference), clock=clock,
+                       logger=logging.getLogger("test.safety"))
+    await safe.connect()
+    await safe.arm()
+    await safe.takeoff(3.0)
+    for _ in range(300):
+        await clock.sleep(0.1)
+        if safe.state().flight_mode == FlightMode.HOLD:
+            break
+    s = safe.state()
+    await safe.start_offboard(Setpoint(*s.position_ned_m, s.yaw_deg))
+    for _ in range(300):  # 15 s at 20 Hz
+        await safe.set_setpoint(Setpoint(s.position_ned_m[0], s.position_ned_m[1], 1.0, 0.0))
+        await clock.sleep(0.05)
+    est_up = -safe.state().position_ned_m[2]
+    true_up = -sim.true_state().position_ned_m[2]
+    return est_up - true_up, true_up, safe.ground_offset_m()
+
+
+@pytest.mark.parametrize("seed", [1, 2, 5])
+async def test_altitude_floor_held_on_the_rangefinder_whatever_the_estimate_error(seed: int) -> None:
+    err_m, true_m, offset_m = await _low_hover("rangefinder", seed)
+    assert abs(err_m) > 0.1, f"seed {seed}: pick a seed whose estimate is off ({err_m:+.2f} m)"
+    assert offset_m == pytest.approx(-err_m, abs=0.05)
+    floor_m = _safety().min_altitude_m + 0.5  # band minus the vertical margin
+    assert true_m == pytest.approx(floor_m, abs=0.1), (err_m, true_m)
+
+
+async def test_altitude_floor_on_the_estimate_moves_with_its_error() -> None:
+    """What ``altitude_reference: estimate`` does (and PX4's EKF did): the true height is the
+    floor minus the estimate's error, here below the floor."""
+    err_m, true_m, offset_m = await _low_hover("estimate", 1)
+    assert offset_m == 0.0
+    assert true_m == pytest.approx(0.5 - err_m, abs=0.1)

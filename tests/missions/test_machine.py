@@ -163,6 +163,10 @@ def test_failsafes_map_to_configured_actions() -> None:
     # priority: link loss is reported before the mode change it causes
     both = _fs(S.CRUISE, Snapshot(link_lost_s=2.0, pilot_override=True))
     assert both.reason.startswith("link lost")
+    # a short link loss PX4 failed over in (and came back from, unreported): not carried on
+    fo = _fs(S.FINE_DESCENT, Snapshot(link_lost_s=1.0, autopilot_failover="no telemetry for 1.2 s"))
+    assert fo is not None and fo.action == s.link_loss_action and "failover" in fo.reason
+    assert _fs(S.PREFLIGHT, Snapshot(autopilot_failover="x")) is None  # on the ground: nothing flown
 
 
 def test_state_timeouts() -> None:

@@ -14,21 +14,37 @@ from __future__ import annotations
 
 import asyncio
 import os
+import socket
 import time
 from collections.abc import AsyncIterator
 
 import pytest
 from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
 from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
+from udp_relay import UdpRelay
 
 from eaglemission.names import ENV_PX4_URL
 from eaglemission.types import FlightMode
 
 try:  # tests/ is not a package: the contract module sits next to this file
-    from contract import BackendBase, VehicleContract
+    from contract import (
+        BackendBase,
+        VehicleContract,
+        start_offboard_here,
+        stream,
+        stream_until,
+        take_off,
+    )
     from emulator_support import ScaledClock
 except ImportError:  # pragma: no cover - when tests/ becomes a package
-    from .contract import BackendBase, VehicleContract  # type: ignore[no-redef]
+    from .contract import (  # type: ignore[no-redef]
+        BackendBase,
+        VehicleContract,
+        start_offboard_here,
+        stream,
+        stream_until,
+        take_off,
+    )
     from .emulator_support import ScaledClock  # type: ignore[no-redef]
 
 SPEEDUP = 4.0
@@ -89,7 +105,31 @@ async def vehicle_backend() -> AsyncIterator[EmulatorBackend]:
         backend.emulator.stop()
 
 
-class TestMavsdkEmulatorContract(VehicleContract):
+class MavsdkLinkTests:
+    """What the MAVSDK driver adds to the contract on a cut link."""
+
+    async def test_link_loss_while_offboard_is_reported_as_a_failover(
+            self, vehicle_backend: EmulatorBackend | Px4Backend) -> None:
+        """PX4 fails over after COM_OF_LOSS_T without setpoints and, when they return, goes
+        back to OFFBOARD without a mode report (recorded i): the driver must say so."""
+        b = vehicle_backend
+        await take_off(b)
+        sp = await start_offboard_here(b)
+        await stream(b, sp, 1.0)
+        assert not [e for e in b.vehicle.events() if e.kind == "failover"]
+        await b.link_loss(3.0)
+        # the setpoints go on, into the void, then again to PX4
+        await stream_until(b, sp, lambda st: not st.link_ok, 10.0, "link lost")
+        await stream_until(b, sp, lambda st: st.link_ok, 60.0, "link regained")
+        await stream(b, sp, 2.0)
+        ev = [e for e in b.vehicle.events() if e.kind == "failover"]
+        assert ev, "no failover event after a 3 s link loss while offboard"
+        assert ev[0].data["gap_s"] > ev[0].data["offboard_loss_timeout_s"]
+        # PX4 went straight back to OFFBOARD when the setpoints returned (recorded i)
+        assert b.vehicle.state().flight_mode == FlightMode.OFFBOARD
+
+
+class TestMavsdkEmulatorContract(VehicleContract, MavsdkLinkTests):
     pass
 
 
@@ -135,16 +175,20 @@ def gcs_set_mode(mode: FlightMode, url: str = PX4_GCS_LINK, timeout_s: float = 5
 
 class Px4Backend(BackendBase):
     """A real PX4 v1.16 SITL: wall time, 1 Hz heartbeats (modes show up to ~1 s late); a pilot's
-    mode change comes from a second ground station on PX4's GCS link (UDP 14550); no link-loss
-    hook yet (it needs a relay between PX4 and the driver)."""
+    mode change comes from a second ground station on PX4's GCS link (UDP 14550); the link is
+    cut by a loopback relay between PX4 and the driver (:class:`udp_relay.UdpRelay`)."""
 
-    hooks = frozenset({"block_event_loop", "pilot_mode_change"})
+    hooks = frozenset({"block_event_loop", "pilot_mode_change", "link_loss"})
     report_lag_s = 1.5
 
-    def __init__(self, vehicle: MavsdkVehicle, clock: ScaledClock) -> None:
+    def __init__(self, vehicle: MavsdkVehicle, clock: ScaledClock, relay: UdpRelay) -> None:
         super().__init__(vehicle, clock)
         self.name = "mavsdk-px4"
         self.watchdog_timeout_s = vehicle.watchdog_timeout_s
+        self.relay = relay
+
+    async def link_loss(self, duration_s: float) -> None:
+        self.relay.cut(duration_s)
 
     async def block_event_loop(self, seconds: float) -> None:
         time.sleep(seconds)
@@ -159,12 +203,22 @@ async def px4_backend() -> AsyncIterator[Px4Backend]:
     url = os.environ.get(ENV_PX4_URL)
     if not url:
         pytest.skip(f"set {ENV_PX4_URL} (e.g. udpin://0.0.0.0:14540) to run against a real PX4 SITL")
+    scheme, _, where = url.partition("://")
+    if scheme != "udpin" or not where.rpartition(":")[2].isdigit():
+        pytest.skip(f"{ENV_PX4_URL}={url}: the PX4 suite relays a udpin:// link (e.g. "
+                    "udpin://0.0.0.0:14540) to cut it")
+    relay = UdpRelay(px4_port=int(where.rpartition(":")[2]), driver_port=_free_udp_port())
     clock = ScaledClock(1.0)
-    vehicle = MavsdkVehicle(MavsdkVehicle.Config(url=url, connect_timeout_s=30.0,
-                                                 watchdog_timeout_s=0.5), clock=clock)
-    await vehicle.connect()
+    vehicle = MavsdkVehicle(MavsdkVehicle.Config(
+        url=f"udpin://127.0.0.1:{relay.driver_addr[1]}", connect_timeout_s=30.0,
+        watchdog_timeout_s=0.5), clock=clock)
     try:
-        yield Px4Backend(vehicle, clock)
+        await vehicle.connect()
+    except BaseException:
+        relay.close()
+        raise
+    try:
+        yield Px4Backend(vehicle, clock, relay)
     finally:
         try:  # leave the SITL on the ground AND disarmed for the next test: armed in LAND,
             # PX4 would auto-disarm it 2 s after "Landing detected", during the next takeoff
@@ -180,10 +234,17 @@ async def px4_backend() -> AsyncIterator[Px4Backend]:
                 await vehicle.hold()
         finally:
             await vehicle.close()
+            relay.close()
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 @pytest.mark.px4
-class TestMavsdkPx4SitlContract(VehicleContract):
+class TestMavsdkPx4SitlContract(VehicleContract, MavsdkLinkTests):
     @pytest.fixture
     def vehicle_backend(self, px4_backend: Px4Backend) -> Px4Backend:
         return px4_backend

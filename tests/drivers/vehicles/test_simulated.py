@@ -4,6 +4,7 @@ determinism under any task schedule."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 
 import pytest
@@ -667,3 +668,31 @@ async def test_land_from_every_mode_lands_in_place_and_disarms(mode: str) -> Non
     assert end.position_ned_m[2] == 0.0 and not end.in_air
     assert math.dist(end.position_ned_m[:2], t.position_ned_m[:2]) < stop_m + 0.5
     assert "Disarmed by landing" in [e.text for e in sim.events()]
+
+
+async def test_short_link_loss_in_offboard_fails_over_back_and_is_reported() -> None:
+    """PX4 (recorded i): without setpoints for COM_OF_LOSS_T it fails over to Position and
+    sinks; setpoints arriving again put it straight back in OFFBOARD. The link came back before
+    the mission's own link-loss timeout, so the ``failover`` event is all that tells."""
+    v, clock = make(link_loss_action="return", link_loss_timeout_s=3.0,
+                    offboard_loss_action="position_no_rc")  # PX4's COM_OBL_RC_ACT=0
+    await airborne(v, clock)
+    s = v.state()
+    sp = Setpoint(*s.position_ned_m, s.yaw_deg)
+    await v.start_offboard(sp)
+    for _ in range(20):
+        await v.set_setpoint(sp)
+        await clock.sleep(0.05)
+    v.inject_link_loss(2.0)
+    lowest_m = math.inf
+    for _ in range(100):  # 5 s of setpoints, 2 of them into the void
+        with contextlib.suppress(VehicleError):
+            await v.set_setpoint(sp)
+        lowest_m = min(lowest_m, -v.true_state().position_ned_m[2])
+        await clock.sleep(0.05)
+    modes = [e.text for e in v.events() if e.kind == "mode"]
+    assert any(m.endswith("-> POSCTL") for m in modes), modes  # the failover (unseen meanwhile)
+    assert lowest_m < -s.position_ned_m[2] - 0.5  # it sank without stick input
+    assert v.state().flight_mode == FlightMode.OFFBOARD  # and went back when setpoints returned
+    ev = [e for e in v.events() if e.kind == "failover"]
+    assert len(ev) == 1 and ev[0].data["gap_s"] == pytest.approx(2.0, abs=0.1)

@@ -1,0 +1,126 @@
+"""Hover precision on ground truth at grasp height, against a real PX4 SITL (SIH).
+
+    python benchmarks/px4_hover.py --url udpin://0.0.0.0:14540 --height-m 0.675 --hold-s 30
+
+One flight: take off, offboard to ``--height-m`` above the ground, then two holds of
+``--hold-s`` each at the same point:
+
+* ``estimate``: the setpoint's altitude is the EKF's (relative to home), as a NED setpoint
+  stream does (what the mission did before the rangefinder reference);
+* ``rangefinder``: the setpoint's altitude is corrected every cycle by the downward range
+  (``altitude + (range x cos tilt - height)``, low-passed), as the mission's plane filter does
+  with ``plane_offset_drift_mps`` sized for PX4's EKF (docs/vehicles.md).
+
+Judged on HIL_STATE_QUATERNION (simulator truth; height = truth altitude above the take-off
+point): horizontal wander about its own mean (RMS, max) and height error (mean, RMS, min), the
+time in ground contact. Every setpoint goes through the safety envelope (floor on the
+rangefinder). Needs PX4 with HIL_STATE_QUATERNION and DISTANCE_SENSOR (SIH has both); start a
+fresh PX4 for each run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import statistics
+import sys
+
+from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
+
+from eaglemission.config import GeofenceConfig, SafetyConfig
+from eaglemission.geometry import down_axis_cos_tilt
+from eaglemission.safety import SafeVehicle
+from eaglemission.types import FlightMode, Setpoint
+
+SETPOINT_PERIOD_S = 0.05
+
+
+async def _hold(safe: SafeVehicle, inner: MavsdkVehicle, mode: str, north_m: float,
+                east_m: float, yaw_deg: float, height_m: float, hold_s: float,
+                settle_s: float) -> dict[str, float]:
+    truth = inner.ground_truth()
+    assert truth is not None
+    loop = asyncio.get_running_loop()
+    t_end = loop.time() + settle_s + hold_s
+    t_judge = loop.time() + settle_s
+    correction_m = 0.0
+    horiz: list[tuple[float, float]] = []
+    heights: list[float] = []
+    while loop.time() < t_end:
+        s = safe.state()
+        if s.flight_mode != FlightMode.OFFBOARD:
+            raise RuntimeError(f"{mode}: left OFFBOARD ({s.flight_mode.value})")
+        down = -height_m
+        if mode == "rangefinder" and s.distance_to_ground_m is not None:
+            agl = s.distance_to_ground_m * down_axis_cos_tilt(s.attitude_q)
+            measured = agl + s.position_ned_m[2]  # height above ground - altitude estimate
+            correction_m += 0.2 * (measured - correction_m)  # ~0.25 s low-pass at 20 Hz
+            down = -height_m + correction_m
+        await safe.set_setpoint(Setpoint(north_m, east_m, down, yaw_deg))
+        if loop.time() >= t_judge:
+            pose = truth.pose_at(inner.clock.now_ns())
+            if pose is not None:
+                (n, e, d), _q = pose
+                horiz.append((n, e))
+                heights.append(-d)
+        await asyncio.sleep(SETPOINT_PERIOD_S)
+    if len(heights) < 10:
+        raise RuntimeError(f"{mode}: no ground truth (HIL_STATE_QUATERNION) during the hold")
+    mn = statistics.fmean(p[0] for p in horiz)
+    me = statistics.fmean(p[1] for p in horiz)
+    r = [math.hypot(n - mn, e - me) for n, e in horiz]
+    err = [h - height_m for h in heights]
+    return {"horizontal_rms_m": math.sqrt(statistics.fmean(x * x for x in r)),
+            "horizontal_max_m": max(r),
+            "height_error_mean_m": statistics.fmean(err),
+            "height_error_rms_m": math.sqrt(statistics.fmean(x * x for x in err)),
+            "height_min_m": min(heights),
+            "ground_contact_s": sum(1 for h in heights if h < 0.05) * SETPOINT_PERIOD_S,
+            "samples": float(len(heights))}
+
+
+async def main(args: argparse.Namespace) -> int:
+    inner = MavsdkVehicle(MavsdkVehicle.Config(url=args.url, connect_timeout_s=30.0))
+    safety = SafetyConfig(geofence=GeofenceConfig(radius_m=30.0), min_altitude_m=0.0,
+                          max_altitude_m=10.0, max_horizontal_speed_mps=2.0,
+                          max_vertical_speed_mps=1.0)
+    safe = SafeVehicle(inner, safety)
+    await safe.connect()
+    results: dict[str, dict[str, float]] = {}
+    try:
+        await safe.arm()
+        await safe.takeoff(3.0)
+        for _ in range(400):
+            if safe.state().flight_mode == FlightMode.HOLD and -safe.state().position_ned_m[2] > 2.5:
+                break
+            await asyncio.sleep(0.1)
+        s = safe.state()
+        n0, e0, yaw = s.position_ned_m[0], s.position_ned_m[1], s.yaw_deg
+        await safe.start_offboard(Setpoint(*s.position_ned_m, yaw))
+        for mode in ("estimate", "rangefinder"):
+            results[mode] = await _hold(safe, inner, mode, n0, e0, yaw, args.height_m,
+                                        args.hold_s, args.settle_s)
+    finally:
+        try:
+            await safe.land()
+            await inner.wait_landed_and_disarmed(land_timeout_s=90.0)
+        finally:
+            await safe.close()
+    print(f"PX4 hover at {args.height_m:g} m above the ground, {args.hold_s:g} s per mode "
+          "(truth: HIL_STATE_QUATERNION)")
+    keys = list(next(iter(results.values())))
+    print(f"{'mode':<12}" + "".join(f"{k:>22}" for k in keys))
+    for mode, r in results.items():
+        print(f"{mode:<12}" + "".join(f"{r[k]:>22.3f}" for k in keys))
+    return 0
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--url", default="udpin://0.0.0.0:14540")
+    ap.add_argument("--height-m", type=float, default=0.675,
+                    help="hover height above the ground (the default config's grasp pose)")
+    ap.add_argument("--hold-s", type=float, default=30.0)
+    ap.add_argument("--settle-s", type=float, default=8.0)
+    sys.exit(asyncio.run(main(ap.parse_args())))
