@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import cv2
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from eaglemission import mcap_record as mr
 from eaglemission.geometry import CameraModel
@@ -42,6 +44,7 @@ from eaglemission.recording import model_to_json
 from eaglemission.types import Frame
 
 log = logging.getLogger(__name__)
+OBJECT_SCHEMA = mr._OBJECT_SCHEMA  # the recording's schema of its JSON companions
 
 DEFAULT_LISTEN = "127.0.0.1:8765"
 THROTTLED = frozenset({"telemetry", "setpoint"})
@@ -291,10 +294,10 @@ class LiveSink:
     def _publish_calibration(self, cid: str, model: CameraModel, t_ns: int) -> None:
         cal = thumbnail_calibration(model, cid, t_ns, self.options.image_width_px)
         self._log(mr.TOPIC_CALIBRATION.format(cid), "foxglove.CameraCalibration",
-                  "protobuf", mr.file_descriptor_set(type(cal)), "protobuf",
+                  "protobuf", mr.file_descriptor_set(CameraCalibration), "protobuf",
                   cal.SerializeToString(), t_ns)
         self._log(mr.TOPIC_MODEL.format(cid), "eaglemission.CameraModel", "jsonschema",
-                  mr._OBJECT_SCHEMA, "json", json.dumps(model_to_json(model)).encode(), t_ns)
+                  OBJECT_SCHEMA, "json", json.dumps(model_to_json(model)).encode(), t_ns)
 
     def _publish_frame(self, frame: Frame, host_ns: int) -> None:
         h, w = frame.image.shape[:2]
@@ -307,10 +310,10 @@ class LiveSink:
             raise OSError(f"cannot encode a thumbnail of {frame.camera_id} seq {frame.seq}")
         data = buf.tobytes()
         cid, t_ns = frame.camera_id, int(frame.timestamp_ns)
-        msg = mr.CompressedImage(frame_id=cid, data=data, format="jpeg")
+        msg = CompressedImage(frame_id=cid, data=data, format="jpeg")
         msg.timestamp.FromNanoseconds(t_ns)
         self._log(mr.TOPIC_IMAGE.format(cid), "foxglove.CompressedImage", "protobuf",
-                  mr.file_descriptor_set(mr.CompressedImage), "protobuf",
+                  mr.file_descriptor_set(CompressedImage), "protobuf",
                   msg.SerializeToString(), t_ns)
         meta = {"camera_id": cid, "seq": int(frame.seq), "timestamp_ns": t_ns,
                 "host_time_ns": int(host_ns), "exposure_s": float(frame.exposure_s),
@@ -318,7 +321,7 @@ class LiveSink:
                 "thumbnail_height_px": th, "jpeg_quality": self.options.jpeg_quality,
                 "jpeg_bytes": len(data)}
         self._log(mr.TOPIC_FRAME.format(cid), "eaglemission.FrameInfo", "jsonschema",
-                  mr._OBJECT_SCHEMA, "json", json.dumps(meta).encode(), t_ns)
+                  OBJECT_SCHEMA, "json", json.dumps(meta).encode(), t_ns)
         self._count("images")
 
     def _advertise(self, cameras: tuple[str, ...]) -> None:
@@ -326,13 +329,13 @@ class LiveSink:
         a client subscribes may be refused to it ("unknown channel"; foxglove-sdk 0.30.3)."""
         for cid in cameras:
             self._channel(mr.TOPIC_IMAGE.format(cid), "foxglove.CompressedImage", "protobuf",
-                          mr.file_descriptor_set(mr.CompressedImage), "protobuf")
+                          mr.file_descriptor_set(CompressedImage), "protobuf")
             self._channel(mr.TOPIC_FRAME.format(cid), "eaglemission.FrameInfo", "jsonschema",
-                          mr._OBJECT_SCHEMA, "json")
+                          OBJECT_SCHEMA, "json")
             self._channel(mr.TOPIC_CALIBRATION.format(cid), "foxglove.CameraCalibration",
-                          "protobuf", mr.file_descriptor_set(mr.CameraCalibration), "protobuf")
+                          "protobuf", mr.file_descriptor_set(CameraCalibration), "protobuf")
             self._channel(mr.TOPIC_MODEL.format(cid), "eaglemission.CameraModel", "jsonschema",
-                          mr._OBJECT_SCHEMA, "json")
+                          OBJECT_SCHEMA, "json")
         for kind in LOG_KINDS:
             self._channel(mr.TOPIC_LOG.format(kind), mr.LOG_SCHEMA.format(kind), "jsonschema",
                           mr.log_json_schema(kind), "json")
