@@ -19,8 +19,9 @@ import pytest
 import yaml
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from foxglove_ws import FoxgloveClient, Received, decode_schema
+from foxglove_ws import FoxgloveClient, decode_schema
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap.reader import make_reader
 
 from eaglemission.cli import main
 from eaglemission.config import MissionFile, load_config
@@ -66,10 +67,10 @@ def _leaver(port: int, out: dict[str, Any]) -> None:
 
 
 @pytest.fixture(scope="module")
-def served(tmp_path_factory: pytest.TempPathFactory) -> tuple[Received, list[dict[str, Any]],
-                                                              list[str], int]:
-    """One short flight with ``--live`` and ``--log``, watched by three clients; returns what
-    the reading client received, the log's records and lines, and the exit code."""
+def served(tmp_path_factory: pytest.TempPathFactory) -> tuple[Any, ...]:
+    """One short flight with ``--live``, ``--log`` and ``--record``, watched by three clients;
+    returns what the reading client received, the log's records and lines, the exit code and
+    the recording's ``(image topic, seq)`` pairs."""
     tmp = tmp_path_factory.mktemp("live")
     port = _free_port()
     out: dict[str, Any] = {}
@@ -85,18 +86,21 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> tuple[Received, list[dic
     for t in threads:
         t.start()
     code = main(["run", str(_short_config(tmp)), "--live", f"127.0.0.1:{port}",
-                 "--log", str(tmp / "x.jsonl")])
+                 "--log", str(tmp / "x.jsonl"), "--record", str(tmp / "x.mcap")])
     for t in threads:
         t.join(timeout=30.0)
     assert not any(t.is_alive() for t in threads)
     out["stalled"].close()
     assert out.get("leaver")
     lines = (tmp / "x.jsonl").read_text().splitlines()
-    return out["received"], [json.loads(ln) for ln in lines], lines, code
+    with (tmp / "x.mcap").open("rb") as f:
+        recorded = {(c.topic, m.sequence) for _, c, m in make_reader(f).iter_messages()
+                    if c.topic.endswith("/image")}
+    return out["received"], [json.loads(ln) for ln in lines], lines, code, recorded
 
 
 def test_live_flight_advertises_the_recordings_channels_and_they_decode(served) -> None:
-    rx, records, _, code = served
+    rx, records, _, code, recorded = served
     assert code == 3  # FAILSAFE: the coarse approach timed out, as configured: the flight ended
     assert rx.server_info.get("name") == "eaglemission"
     by_topic = {ch["topic"]: ch for ch in rx.channels.values()}
@@ -131,10 +135,14 @@ def test_live_flight_advertises_the_recordings_channels_and_they_decode(served) 
         assert (cal.width, cal.height) == (320, 240) and cal.K[0] > 0
         info = [json.loads(p) for _, p in rx.messages[f"/camera/{cam}/frame"]]
         assert {i["thumbnail_width_px"] for i in info} == {320}
+        # the recorder got every processed frame, the live view a throttled part of the same
+        topic = f"/camera/{cam}/image"
+        assert len({s for t, s in recorded if t == topic}) == processed[cam]
+        assert {(topic, i["seq"]) for i in info} <= recorded
 
 
 def test_live_log_channels_carry_the_log_files_lines_throttled(served) -> None:
-    rx, records, lines, _ = served
+    rx, records, lines, _, _ = served
     got = {topic: [p.decode() for _, p in msgs] for topic, msgs in rx.messages.items()
            if topic.startswith("/log/")}
     state_lines = [ln for ln, r in zip(lines, records) if r["kind"] == "state"]
