@@ -176,8 +176,10 @@ class LiveSink:
                 name=name, host=options.host, port=options.port, context=self._context,
                 message_backlog_size=options.backlog_messages)
         except Exception as exc:  # the SDK raises RuntimeError (FoxgloveError)
-            raise LiveError(f"cannot serve {options.url}: {exc} (another program or flight "
-                            "uses that port? choose another with --live HOST:PORT)") from None
+            hint = ("another program or flight uses that port: choose another with --live "
+                    "HOST:PORT" if "in use" in str(exc) else f"is {options.host} an address "
+                    "of this machine? 127.0.0.1: localhost only, 0.0.0.0: every interface")
+            raise LiveError(f"cannot serve {options.url}: {exc} ({hint})") from None
         self.port = int(self._server.port)
         self.stats: dict[str, Any] = {
             "url": LiveOptions(options.host, self.port).url, "messages": 0, "bytes": 0,
