@@ -229,7 +229,16 @@ class LiveSink:
             self._thread.join(timeout=timeout_s)
             for ch in self._channels.values():
                 ch.close()
-            self._server.stop()
+            # stop() waits for every client to take what is queued for it (foxglove-sdk
+            # 0.30.3): a stalled client must not hold up the end of a flight
+            stopper = threading.Thread(target=self._server.stop, name="live-stop", daemon=True)
+            stopper.start()
+            stopper.join(timeout=timeout_s)
+            if stopper.is_alive():
+                log.warning("live: a client is not reading; leaving the server to stop alone")
+                with self._lock:
+                    self.stats["error"] = self.stats["error"] or "a stalled client: the server "\
+                        "stopped without waiting for it"
         with self._lock:
             return dict(self.stats)
 

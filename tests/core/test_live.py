@@ -224,3 +224,38 @@ def test_throttle_on_mission_time_and_counts() -> None:
     client.close()
     assert stats["records"] == 20 and stats["images"] == 4 and stats["throttled"] == 80 + 46
     assert stats["dropped"] == 0 and stats["errors"] == 0
+
+
+def test_a_stalled_client_never_blocks_the_sink_nor_the_other_clients() -> None:
+    """~19 MB to a client that stopped reading behind a 2 kB TCP window (far beyond the
+    kernel's buffers and the server's 16-message backlog): every record is still published
+    at once, and a reading client gets them to the last one."""
+    from eaglemission.live import LiveSink
+
+    sink = LiveSink(LiveOptions(port=0, backlog_messages=16, queue_items=1000))
+    out: dict[str, Any] = {}
+    _stalled(sink.port, out)
+    reader = FoxgloveClient("127.0.0.1", sink.port)
+    thread = threading.Thread(target=lambda: out.update(rx=reader.read_all(until_closed_s=60)),
+                              daemon=True)
+    thread.start()
+    for i in range(200):  # until the reader is subscribed
+        sink.record({"kind": "state", "t_ns": i}, json.dumps({"kind": "state", "i": i}))
+        if reader.received.messages.get("/log/state"):
+            break
+        threading.Event().wait(0.05)
+    assert reader.received.messages.get("/log/state"), "the reader never got subscribed"
+    pad = "x" * 64_000
+    n = 300
+    for i in range(n):
+        sink.record({"kind": "event", "t_ns": i}, json.dumps({"kind": "event", "i": i,
+                                                              "pad": pad}))
+    stats = sink.close(timeout_s=2.0)  # the server's stop() would wait for the stalled one
+    stalled: FoxgloveClient = out["stalled"]
+    stalled.close()
+    thread.join(timeout=30.0)
+    assert stats["dropped"] == 0 and stats["errors"] == 0
+    assert stats["records"] >= n  # the sink's thread published every one: never blocked
+    got = [json.loads(p)["i"] for _, p in out["rx"].messages.get("/log/event", [])]
+    assert got and got[-1] == n - 1  # the reading client followed to the last one
+    assert "stalled client" in stats["error"]  # close() did not wait for it
