@@ -219,7 +219,8 @@ class LiveSink:
         self._put(("calibration", camera_id, model, int(t_ns)))
 
     def close(self, timeout_s: float = 5.0) -> dict[str, Any]:
-        """Publish what is queued (at most ``timeout_s``), stop the server; the counts."""
+        """Publish what is queued and stop the server (each at most ``timeout_s``: a stalled
+        client is not waited for); the counts."""
         if not self._closed:
             self._closed = True
             try:
