@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import autopilot_guard, mcap_record, registry
+from eaglemission import autopilot_guard, live, mcap_record, registry
 from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import BoundLoopClock, Clock, run_blocking, run_virtual
 from eaglemission.config import MissionFile, merge_params
@@ -261,6 +261,9 @@ class FlightOptions:
     """A :class:`~eaglemission.mcap_record.RecordOptions`: record the flight as MCAP (None:
     as the config's ``recording`` section says, when ``record_config``)."""
     record_config: bool = True
+    live: Any = None
+    """A :class:`~eaglemission.live.LiveOptions`: serve the flight live in Foxglove (the CLI
+    applies the config's ``live`` section); the server starts before take-off."""
     truth_wait_s: float = 3.0
     """How long to wait, after connecting, for the first ground-truth sample."""
     camera_open_timeout_s: float = 20.0
@@ -280,6 +283,7 @@ class FlightResult:
     virtual: bool = False
     recording: dict[str, Any] | None = None
     """The MCAP recorder's counts (frames written and dropped, write errors, bytes)."""
+    live: dict[str, Any] | None = None
 
 
 def exit_code_for(outcome: MissionOutcome | None, *, interrupted: bool) -> int:
@@ -435,6 +439,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         await _close_vehicle(safe)
         raise
     opened: list[str] = []
+    sink = None
     try:
         try:
             await _open_cameras(asm, opt.camera_open_timeout_s)
@@ -447,13 +452,16 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         if opt.on_header is not None:
             opt.on_header(result.header)
         disk = None if record is None else mcap_record.disk_check(record, say)
-        if disk is not None and not disk[1] and not opt.dry_run:
-            result.exit_code, result.error = EXIT_PREFLIGHT, f"{disk[0]}: {disk[2]}"
+        sink, live_check = live.start(opt.live, say)
+        sink_checks = [c for c in (disk, live_check) if c is not None]
+        failed = [c for c in sink_checks if not c[1]]
+        if failed and not opt.dry_run:
+            result.exit_code, result.error = EXIT_PREFLIGHT, f"{failed[0][0]}: {failed[0][2]}"
             return result
         if opt.dry_run:
             from eaglemission.preflight import dry_run_checks
 
-            result.checks = await dry_run_checks(asm, say) + ([disk] if disk else [])
+            result.checks = await dry_run_checks(asm, say) + sink_checks
             ok = all(passed for _, passed, _ in result.checks)
             result.exit_code = EXIT_DONE if ok else EXIT_PREFLIGHT
             if not ok:
@@ -482,6 +490,8 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
             result.exit_code, result.error = EXIT_PREFLIGHT, refused
             return result
         recorder, hooks = mcap_record.flight_recorder(cfg, record, asm, virtual, opt.hooks)
+        hooks = live.attach(sink, hooks, {c: cam.model for c, cam in asm.cameras.items()},
+                            asm.clock.now_ns())
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
                                 parts=asm.parts(realtime=not virtual), hooks=hooks)
         interrupts.mission = mission
@@ -503,6 +513,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
     finally:
         await autopilot_guard.after_flight(asm.guard, asm.vehicle, say)
         await _close_all(asm, opened)
+        result.live = live.stop(sink)
         result.wall_s = time.perf_counter() - wall0
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9
 

@@ -254,6 +254,31 @@ class RecordingConfig(StrictModel):
     ``run --dry-run`` reports the figure."""
 
 
+class LiveConfig(StrictModel):
+    """Serve every flight of this file live in Foxglove (docs/recording.md, "Live view in
+    Foxglove"): the recording's channels over the Foxglove WebSocket protocol, thumbnails and
+    telemetry throttled for a radio link. ``run --live HOST:PORT`` replaces ``listen``,
+    ``run --no-live`` turns it off; needs ``pip install eaglemission[live]``."""
+
+    listen: str = "127.0.0.1:8765"
+    """``HOST:PORT`` to listen on; localhost unless told otherwise (``0.0.0.0:8765``: every
+    interface, e.g. the radio's)."""
+    image_hz: Annotated[float, Field(gt=0, le=100)] = 2.0
+    """Thumbnails per camera and second of flight, at most."""
+    image_width_px: Annotated[int, Field(ge=16, le=8192)] = 320
+    jpeg_quality: Annotated[int, Field(ge=1, le=100)] = 60
+    telemetry_hz: Annotated[float, Field(gt=0, le=1000)] = 10.0
+    """``telemetry`` and ``setpoint`` records per second of flight, at most (the other
+    records, rarer, are all sent)."""
+
+    @model_validator(mode="after")
+    def _listen(self) -> LiveConfig:
+        from eaglemission.live import parse_listen
+
+        parse_listen(self.listen, where="listen")
+        return self
+
+
 class MissionFile(StrictModel):
     """A whole mission configuration file."""
 
@@ -271,6 +296,8 @@ class MissionFile(StrictModel):
     safety: SafetyConfig = Field(default_factory=SafetyConfig)
     recording: RecordingConfig | None = None
     """Record every flight as MCAP (``null``: only with ``run --record``)."""
+    live: LiveConfig | None = None
+    """Serve every flight live in Foxglove (``null``: only with ``run --live``)."""
     world: PluginSection | None = None
     """The simulated world the fake drivers share (ground truth; ``eaglemission plugins``
     lists the ``worlds``); ``null`` for flights with nothing simulated."""

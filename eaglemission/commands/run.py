@@ -43,6 +43,12 @@ def _add(p: argparse.ArgumentParser) -> None:
                         "config's recording.quality, else 75)")
     p.add_argument("--no-record", action="store_true",
                    help="do not record, even when the config's `recording` section says so")
+    p.add_argument("--live", metavar="HOST:PORT", nargs="?", const="",
+                   help="serve the flight live in Foxglove (the recording's channels over the "
+                        "Foxglove WebSocket protocol, throttled thumbnails and telemetry; "
+                        "default 127.0.0.1:8765 or the config's live.listen; docs/recording.md)")
+    p.add_argument("--no-live", action="store_true",
+                   help="do not serve live, even when the config's `live` section says so")
     p.add_argument("--log", metavar="FILE", help="JSON-lines mission log (default: none)")
     p.add_argument("--realtime", action="store_true",
                    help="run at wall-clock speed even when everything could run in virtual time")
@@ -125,6 +131,19 @@ def _record_options(section: Any, path: Path, quality: int | None) -> Any:
                          split_mb=section.split_mb, min_free_mb=section.min_free_mb)
 
 
+def _live_options(args: argparse.Namespace, section: Any) -> Any:
+    """The flight's :class:`~eaglemission.live.LiveOptions` (None: not live); raises
+    ValueError for a bad ``--live`` or ``live.listen``."""
+    from eaglemission import live
+
+    if args.no_live or (args.live is None and section is None):
+        return None
+    if args.live and (args.live.lower().endswith((".yaml", ".yml")) or Path(args.live).is_file()):
+        raise ValueError(f"--live {args.live}: that is a file, not HOST:PORT; put the mission "
+                         "file before --live, or write --live=HOST:PORT")
+    return live.options_from_config(section, args.live or None)
+
+
 def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -154,6 +173,11 @@ def _run(args: argparse.Namespace) -> int:
         data["vehicle"] = {"type": "simulated", "params": {}}
     if args.record_quality is not None and data.get("recording"):
         data["recording"]["quality"] = args.record_quality
+    try:
+        live_options = _live_options(args, cfg.live)
+    except ValueError as exc:
+        _print(err, f"error: {exc}")
+        return assembly.EXIT_CONFIG
     source = args.config or "<embedded sitl_synthetic.yaml>"
     _print(console, f"eaglemission run {source}")
 
@@ -202,7 +226,7 @@ def _run(args: argparse.Namespace) -> int:
         realtime=args.realtime, dry_run=args.dry_run,
         confirm=None if (args.yes or args.vehicle == "emulator") else _confirm,
         handle_signals=True, on_header=on_header, on_line=lambda s: _print(console, s),
-        prepare=prepare, record=record_mcap,
+        prepare=prepare, record=record_mcap, live=live_options,
         record_config=not (args.no_record or args.record),
         hooks=MissionHooks(log_path=Path(args.log) if args.log else None, on_state=on_state,
                            **hooks_kw))
@@ -245,6 +269,13 @@ def _run(args: argparse.Namespace) -> int:
                 f"{r['frames_dropped']} frames dropped, {r['write_errors']} write errors")
         _print(err if r["write_errors"] else console,
                what + (f" ({r['error']})" if r["error"] else ""))
+    if result.live is not None:
+        lv = result.live
+        _print(err if lv["errors"] or lv["dropped"] else console,
+               f"live view {lv['url']}: {lv['messages']} messages ({lv['images']} thumbnails, "
+               f"{lv['bytes'] / 1e6:.2f} MB) published, {lv['throttled']} throttled, "
+               f"{lv['dropped']} dropped, {lv['errors']} errors"
+               + (f" ({lv['error']})" if lv["error"] else ""))
     if result.error:
         _print(err, f"error: {result.error}")
     _print(console, f"exit {result.exit_code} ({EXIT_NAMES.get(result.exit_code, '?')}) after "
