@@ -26,9 +26,9 @@ def free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def mission_file(tmp: Path, name: str, **sections: Any) -> Path:
-    """The shipped sitl_synthetic.yaml with some sections' keys replaced, written to disk."""
-    data = yaml.safe_load((REPO / "configs" / "sitl_synthetic.yaml").read_text())
+def mission_file(tmp: Path, name: str, base: str = "sitl_synthetic.yaml", **sections: Any) -> Path:
+    """A shipped config (``base``) with some sections' keys replaced, written to disk."""
+    data = yaml.safe_load((REPO / "configs" / base).read_text())
     for key, value in sections.items():
         if isinstance(value, dict) and isinstance(data.get(key), dict) and not value.get("_replace"):
             data[key] = {**data[key], **value}

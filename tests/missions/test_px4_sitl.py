@@ -24,7 +24,7 @@ pytestmark = [pytest.mark.px4, pytest.mark.skipif(
 
 def test_mission_on_px4_sitl(tmp_path: Path) -> None:
     url = os.environ[ENV_PX4_URL]
-    mission = mission_file(tmp_path, "px4.yaml", vehicle={
+    mission = mission_file(tmp_path, "px4.yaml", base="px4_sitl.yaml", vehicle={
         "_replace": True, "type": "mavsdk", "params": {"url": url, "connect_timeout_s": 30}})
     p = subprocess.run(cli("run", str(mission), "--yes", "--log", "px4.jsonl"), cwd=tmp_path,
                        capture_output=True, text=True, timeout=900, env=run_env())
