@@ -4,13 +4,15 @@
 opens for a flight (:func:`open_recorder`). It writes, on its own thread:
 
 * ``/camera/<id>/image``: every frame the mission processed, ``foxglove.CompressedImage``
-  (protobuf, JPEG at ``jpeg_quality``), encoded here, off the event loop;
+  (protobuf, JPEG at ``jpeg_quality``, or PNG: ``lossless``), encoded here, off the event loop;
 * ``/camera/<id>/frame``: its companion (JSON): camera id, seq, ``timestamp_ns`` (mid-exposure
   on the mission clock), ``host_time_ns`` (host UTC when the mission processed it), exposure;
 * ``/camera/<id>/calibration``: ``foxglove.CameraCalibration`` (protobuf) and
   ``/camera/<id>/model`` (JSON: the full camera model, mount included), once at the start;
 * ``/log/<kind>``: every mission-log record, the very JSON line the ``--log`` file gets, on a
   topic per ``kind`` with a JSON schema;
+* ``/vehicle/*`` (JSON): what the mission got from the vehicle (:mod:`eaglemission.vehicle_tap`,
+  what ``eaglemission replay`` answers from);
 * ``/recorder/stats`` (JSON): the recorder's own counts and the mission's frame counts per
   camera (grabbed, processed, skipped, dropped: the ``end`` record's ``frame_counts``), at the
   end.
@@ -572,7 +574,6 @@ def flight_recorder(cfg: Any, options: RecordOptions | None, asm: Any, virtual: 
     import dataclasses
 
     from eaglemission.provenance import config_sha256, package_versions
-
     from eaglemission.vehicle_tap import VehicleTap
 
     t0_ns = asm.clock.now_ns()

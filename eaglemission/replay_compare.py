@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,7 @@ def replay_config_data(config: Mapping[str, Any], path: Path) -> dict[str, Any]:
     """A mission file (as JSON values) flying its detector, estimators and mission on the
     recording at ``path``: both cameras and the vehicle become ``replay`` plugins reading it
     (``pacing: clock``), nothing is simulated (no world) and nothing is recorded."""
-    data = json.loads(json.dumps(dict(config)))
+    data: dict[str, Any] = json.loads(json.dumps(dict(config)))
     data["vehicle"] = {"type": "replay", "params": {"path": str(path)}}
     for cid in (CAMERA_WIDE, CAMERA_NARROW):
         cam = dict(data["cameras"][cid])
@@ -135,7 +135,7 @@ def detections(records: Iterable[Mapping[str, Any]]) -> Counter[str]:
                    if r.get("kind") == "detection" and r.get("used"))
 
 
-def compare(recorded: list[Mapping[str, Any]], replayed: list[Mapping[str, Any]]
+def compare(recorded: Sequence[Mapping[str, Any]], replayed: Sequence[Mapping[str, Any]]
             ) -> Comparison:
     """Channel by channel; the divergence reported is the earliest in time."""
     a, b = channels(recorded), channels(replayed)

@@ -13,8 +13,8 @@ these channels (docs/recording.md):
   accepted ones are the ``/log/setpoint`` records);
 * ``/vehicle/param``: every autopilot parameter read or set, and its result.
 
-Each message carries ``t_ns`` (the flight clock when the mission asked) and ``commands`` (the
-commands completed by then): at one instant, a state observed after a command is told apart
+Each message carries ``n`` (its number), ``t_ns`` (the flight clock when the mission asked)
+and ``commands`` (the commands completed by then): at one instant, a state observed after a command is told apart
 from the one before it. The ``replay`` vehicle answers from these channels
 (``drivers/vehicles/replay_mcap.py``).
 """
@@ -82,6 +82,8 @@ class VehicleTap:
         self._last_state: VehicleState | None = None
         self._events_seen = 0
         self.commands = 0
+        self._n = 0
+        """Messages so far (each message's ``n``: the order the mission asked in)."""
         self._calls: Counter[str] = Counter()
 
     @property
@@ -98,7 +100,8 @@ class VehicleTap:
 
     def _emit(self, topic: str, fields: dict[str, Any]) -> None:
         t_ns = int(self.clock.now_ns())
-        msg = {"t_ns": t_ns, "commands": self.commands, **fields}
+        msg = {"n": self._n, "t_ns": t_ns, "commands": self.commands, **fields}
+        self._n += 1
         if self._sink is not None:
             self._sink(topic, t_ns, msg)
         elif len(self._pending) < self._max_pending:

@@ -36,10 +36,9 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+from eaglemission.drivers.cameras.replay_mcap import McapFrames
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
-
-from eaglemission.drivers.cameras.replay_mcap import McapFrames
 
 from eaglemission.clock import Clock
 from eaglemission.context import REPLAY_EPOCH_NS, SharedContext

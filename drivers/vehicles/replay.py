@@ -137,7 +137,7 @@ class ReplayVehicle:
         return f"recording {self._run}, open loop"
 
     def __getattr__(self, name: str) -> Any:
-        mcap = self.__dict__.get("_mcap")
+        mcap: McapVehicleLog | None = self.__dict__.get("_mcap")
         if name in ("get_param", "set_param") and mcap is not None:
             async def call(*args: Any) -> float:
                 return mcap.param(name, *args)
@@ -163,8 +163,8 @@ class ReplayVehicle:
         if self._mcap is not None:
             rec = now - self._epoch_ns
             self._mcap.advance(rec)
-            st = self._shift(self._mcap.current)
-            return st if rec <= self._mcap.end_ns else dataclasses.replace(st, link_ok=False)
+            cur = self._shift(self._mcap.current)
+            return cur if rec <= self._mcap.end_ns else dataclasses.replace(cur, link_ok=False)
         if now < self._first.timestamp_ns:
             return _open_loop(self._first)
         if now > self._last.timestamp_ns:
@@ -180,9 +180,9 @@ class ReplayVehicle:
     def state_at(self, timestamp_ns: int) -> VehicleState | None:
         h = self._require("state_at()")
         if self._mcap is not None:
-            st = self._mcap.state_at(timestamp_ns - self._epoch_ns,
-                                     int(self.clock.now_ns()) - self._epoch_ns)
-            return None if st is None else self._shift(st)
+            found = self._mcap.state_at(timestamp_ns - self._epoch_ns,
+                                        int(self.clock.now_ns()) - self._epoch_ns)
+            return None if found is None else self._shift(found)
         return h.state_at(timestamp_ns)
 
     def events(self) -> Sequence[VehicleEvent]:
