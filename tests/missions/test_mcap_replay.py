@@ -179,3 +179,29 @@ def _vehicle(path: Path, topic: str) -> list[dict[str, Any]]:
     from eaglemission.mcap_tools import messages
 
     return [json.loads(m.data) for t, m in messages(path) if t == topic]
+
+
+def test_compare_reports_the_earliest_divergence_over_the_channels() -> None:
+    from eaglemission.replay_compare import compare
+
+    def sp(t: int, n: float) -> dict[str, Any]:
+        return {"kind": "setpoint", "t_ns": t, "state": "CRUISE", "setpoint": [n, 0, -5, 0],
+                "sent": [n, 0, -5, 0], "goal": [n, 0, -5], "target": None, "latency_ms": 3.0}
+
+    def st(t: int, new: str) -> dict[str, Any]:
+        return {"kind": "state", "t_ns": t, "old": "CRUISE", "new": new, "reason": "r"}
+
+    start = {"kind": "start", "t_ns": 1_000_000_000}
+    rec = [start, sp(2_000_000_000, 1.0), st(2_500_000_000, "A"), sp(3_000_000_000, 2.0)]
+    same = [dict(r, latency_ms=99.0) if r["kind"] == "setpoint" else r for r in rec]
+    assert compare(rec, same).identical  # latencies are not compared
+    later_sp = [start, sp(2_000_000_000, 1.0), st(2_500_000_000, "A"), sp(3_000_000_000, 2.5)]
+    earlier_st = [start, sp(2_000_000_000, 1.0), st(2_400_000_000, "A"), sp(3_000_000_000, 2.5)]
+    d = compare(rec, later_sp).divergence
+    assert d is not None and (d.channel, d.index, d.t_s) == ("setpoint", 1, 2.0)
+    d = compare(rec, earlier_st).divergence  # the state change comes first in time
+    assert d is not None and (d.channel, d.index) == ("state", 0)
+    assert abs(d.t_s - 1.4) < 1e-9 and d.recorded == {
+        "t_ns": 2_500_000_000, "old": "CRUISE", "new": "A", "reason": "r", "action": None}
+    d = compare(rec, rec[:-1]).divergence  # the replay has fewer setpoints
+    assert d is not None and d.replayed is None and d.channel == "setpoint"
