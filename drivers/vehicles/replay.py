@@ -13,7 +13,9 @@ reported true throughout (the recorded flight arms anyway: the gate means nothin
 An MCAP recording (``path: flight.mcap``, ``run --record``) holds what the flight's vehicle
 answered the mission (:mod:`.replay_mcap`): states, lookups, events, command and parameter
 results are answered as recorded, by time, and nothing is added (no open-loop events), so a
-replay that asks the same questions gets the same answers (``eaglemission replay``).
+replay that asks the same questions gets the same answers (``eaglemission replay``); only
+``armable`` stays true while the recorded vehicle is armed (a replay whose preflight ends later
+than the flight's would wait for a vehicle that armed already).
 """
 
 from __future__ import annotations
@@ -164,6 +166,8 @@ class ReplayVehicle:
             rec = now - self._epoch_ns
             self._mcap.advance(rec)
             cur = self._shift(self._mcap.current)
+            if cur.armed and not cur.armable:  # armed already: see _open_loop
+                cur = dataclasses.replace(cur, armable=True)
             return cur if rec <= self._mcap.end_ns else dataclasses.replace(cur, link_ok=False)
         if now < self._first.timestamp_ns:
             return _open_loop(self._first)
