@@ -57,6 +57,7 @@ from eaglemission.interfaces import (
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.safety import SafeVehicle
 from eaglemission.types import XYZ, Quat
+from eaglemission.vehicle_tap import VehicleTap
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,8 @@ EXIT_FAILSAFE = 3
 EXIT_CONNECTION = 4
 EXIT_PREFLIGHT = 5
 EXIT_TRUTH_FAILED = 6
+EXIT_REPLAY_DIVERGED = 7
+"""``eaglemission replay``: the replay's setpoints or state changes differ from the recording."""
 EXIT_INTERRUPTED = 130
 
 
@@ -187,12 +190,14 @@ def world_config(cfg: MissionFile) -> Any:
     return None if world is None else world.config
 
 
-def build_vehicle(cfg: MissionFile, clock: Clock, shared: SharedContext
-                  ) -> tuple[Any, SafeVehicle]:
-    """The vehicle plugin of ``cfg`` and its envelope wrapper (not connected)."""
+def build_vehicle(cfg: MissionFile, clock: Clock, shared: SharedContext, *,
+                  tap: bool = False) -> tuple[Any, SafeVehicle]:
+    """The vehicle plugin of ``cfg`` and its envelope wrapper (not connected); ``tap``: a
+    :class:`~eaglemission.vehicle_tap.VehicleTap` between them (a recorded flight)."""
     driver = registry.load("vehicles", cfg.vehicle.type, cfg.vehicle.params, clock=clock,
                            safety=cfg.safety, simulation=world_config(cfg), shared=shared)
-    return driver, SafeVehicle(driver, cfg.safety, clock=clock,
+    inner = VehicleTap(driver, clock) if tap else driver
+    return driver, SafeVehicle(inner, cfg.safety, clock=clock,
                                logger=logging.getLogger("eaglemission.safety"))
 
 
@@ -415,8 +420,8 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
     shared = SharedContext()
     try:
         flight_plan = plan(cfg)
-        driver, safe = build_vehicle(cfg, clock, shared)
         record = mcap_record.planned(cfg, opt.record, use_config=opt.record_config)
+        driver, safe = build_vehicle(cfg, clock, shared, tap=record is not None)
     except (ConfigError, PluginError) as exc:
         return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual)
     result = FlightResult(EXIT_ERROR, virtual=virtual)
@@ -484,7 +489,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                 return result
         if opt.prepare is not None:
             opt.prepare(asm)
-        asm.guard = AutopilotGuard(asm.driver, cfg.safety, cfg.mission.cruise_altitude_m)
+        asm.guard = AutopilotGuard(asm.vehicle.inner, cfg.safety, cfg.mission.cruise_altitude_m)
         refused = await autopilot_guard.before_flight(asm.guard, say)
         if refused:  # nothing armed; what was set already is restored below
             result.exit_code, result.error = EXIT_PREFLIGHT, refused

@@ -4,13 +4,15 @@
 opens for a flight (:func:`open_recorder`). It writes, on its own thread:
 
 * ``/camera/<id>/image``: every frame the mission processed, ``foxglove.CompressedImage``
-  (protobuf, JPEG at ``jpeg_quality``), encoded here, off the event loop;
+  (protobuf, JPEG at ``jpeg_quality``, or PNG: ``lossless``), encoded here, off the event loop;
 * ``/camera/<id>/frame``: its companion (JSON): camera id, seq, ``timestamp_ns`` (mid-exposure
   on the mission clock), ``host_time_ns`` (host UTC when the mission processed it), exposure;
 * ``/camera/<id>/calibration``: ``foxglove.CameraCalibration`` (protobuf) and
   ``/camera/<id>/model`` (JSON: the full camera model, mount included), once at the start;
 * ``/log/<kind>``: every mission-log record, the very JSON line the ``--log`` file gets, on a
   topic per ``kind`` with a JSON schema;
+* ``/vehicle/*`` (JSON): what the mission got from the vehicle (:mod:`eaglemission.vehicle_tap`,
+  what ``eaglemission replay`` answers from);
 * ``/recorder/stats`` (JSON): the recorder's own counts and the mission's frame counts per
   camera (grabbed, processed, skipped, dropped: the ``end`` record's ``frame_counts``), at the
   end.
@@ -84,6 +86,9 @@ class RecordOptions:
     """Go on in ``NAME.001.mcap``... once a file holds this many MB (None: one file)."""
     min_free_mb: float = 0.0
     """Refuse to take off with less free space on the recording's disk."""
+    lossless: bool = False
+    """PNG frames instead of JPEG: the replay's detector sees exactly the processed pixels
+    (``eaglemission replay`` equals the flight only then)."""
 
 
 def part_path(path: Path, part: int) -> Path:
@@ -175,6 +180,11 @@ def log_json_schema(kind: str) -> bytes:
     return json.dumps(schema).encode()
 
 
+def _plain(o: Any) -> Any:
+    """numpy scalars and arrays as JSON values (the vehicle tap's messages)."""
+    return o.tolist() if hasattr(o, "tolist") else repr(o)
+
+
 _OBJECT_SCHEMA = json.dumps({"type": "object", "additionalProperties": True}).encode()
 
 
@@ -208,13 +218,16 @@ class McapRecorder:
                  queue_frames: int = 32, when_full: Literal["drop", "wait"] = "drop",
                  chunk_s: float = 1.0, chunk_bytes: int = 4 << 20,
                  compression: str = "zstd", metadata: Mapping[str, str] | None = None,
-                 stream: IO[bytes] | None = None, split_bytes: int | None = None) -> None:
-        if when_full not in ("drop", "wait"):
-            raise ValueError(f"when_full: 'drop' or 'wait', got {when_full!r}")
+                 stream: IO[bytes] | None = None, split_bytes: int | None = None,
+                 image_format: Literal["jpeg", "png"] = "jpeg") -> None:
+        if when_full not in ("drop", "wait") or image_format not in ("jpeg", "png"):
+            raise ValueError(f"when_full: 'drop' or 'wait', got {when_full!r}; image_format: "
+                             f"'jpeg' or 'png', got {image_format!r}")
         if not 1 <= int(jpeg_quality) <= 100:
             raise ValueError(f"jpeg_quality: 1..100, got {jpeg_quality}")
         self.path = None if path is None else Path(path)
         self.jpeg_quality = int(jpeg_quality)
+        self.image_format = image_format
         self.when_full = when_full
         self.chunk_ns = int(chunk_s * 1e9)
         self.chunk_s = float(chunk_s)
@@ -272,6 +285,17 @@ class McapRecorder:
         self._queue.put(("record", str(record.get("kind", "unknown")), int(record["t_ns"]),
                          time.time_ns(), line))
         self._report()
+
+    def message(self, topic: str, t_ns: int, payload: Mapping[str, Any]) -> None:
+        """Any JSON message on ``topic`` at mission time ``t_ns`` (the vehicle tap's)."""
+        if self._closed:
+            return
+        with self._lock:
+            if self._records_pending >= self._max_records:
+                self.stats["records_dropped"] += 1
+                return
+            self._records_pending += 1
+        self._queue.put(("json", topic, int(t_ns), time.time_ns(), payload))
 
     def frame(self, frame: Frame) -> None:
         if self._closed:
@@ -354,6 +378,10 @@ class McapRecorder:
                             item[4].encode("utf-8"))
                 if self._writer is not None:
                     self.stats["records_written"] += 1
+            elif kind == "json":
+                data = json.dumps(item[4], separators=(",", ":"), default=_plain).encode()
+                self._write(item[1], "eaglemission" + item[1].replace("/", "."), "jsonschema",
+                            _OBJECT_SCHEMA, "json", item[2], item[3], data)
             elif kind == "calibration":
                 _, cid, model, t_ns, host_ns = item
                 msg = calibration_message(model, cid, t_ns)
@@ -368,7 +396,7 @@ class McapRecorder:
         finally:
             if kind == "frame":
                 self._frame_slots.release()
-            elif kind == "record":
+            elif kind in ("record", "json"):
                 with self._lock:
                     self._records_pending -= 1
         self._flush_if_due()
@@ -415,13 +443,16 @@ class McapRecorder:
             self.stats["messages_lost"] += 2
             return
         t0 = time.perf_counter()
-        ok, buf = cv2.imencode(".jpg", frame.image, [cv2.IMWRITE_JPEG_QUALITY,
-                                                     self.jpeg_quality])
+        png = self.image_format == "png"
+        ok, buf = cv2.imencode(".png" if png else ".jpg", frame.image,
+                               [cv2.IMWRITE_PNG_COMPRESSION, 1] if png
+                               else [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
         if not ok:
-            raise OSError(f"cannot encode frame {frame.seq} of {frame.camera_id!r} as JPEG")
+            raise OSError(f"cannot encode frame {frame.seq} of {frame.camera_id!r} as "
+                          f"{self.image_format}")
         encode_ms = (time.perf_counter() - t0) * 1e3
         data = buf.tobytes()
-        img = CompressedImage(frame_id=frame.camera_id, data=data, format="jpeg")
+        img = CompressedImage(frame_id=frame.camera_id, data=data, format=self.image_format)
         img.timestamp.FromNanoseconds(int(frame.timestamp_ns))
         cid = frame.camera_id
         self._write(TOPIC_IMAGE.format(cid), "foxglove.CompressedImage", "protobuf",
@@ -527,7 +558,8 @@ def open_recorder(options: RecordOptions, models: Mapping[str, CameraModel], *,
                        queue_frames=options.queue_frames,
                        when_full="wait" if virtual else "drop", chunk_s=options.chunk_s,
                        chunk_bytes=options.chunk_bytes, compression=options.compression,
-                       metadata=metadata, split_bytes=split)
+                       metadata=metadata, split_bytes=split,
+                       image_format="png" if options.lossless else "jpeg")
     for cid, model in models.items():
         rec.calibration(cid, model, t_ns)
     return rec
@@ -542,9 +574,15 @@ def flight_recorder(cfg: Any, options: RecordOptions | None, asm: Any, virtual: 
     import dataclasses
 
     from eaglemission.provenance import config_sha256, package_versions
+    from eaglemission.vehicle_tap import VehicleTap
 
+    t0_ns = asm.clock.now_ns()
     meta = {"config_sha256": config_sha256(cfg), "versions": json.dumps(package_versions()),
-            "clock": "virtual" if virtual else "wall"}
+            "clock": "virtual" if virtual else "wall", "t0_ns": str(t0_ns),
+            "images": "png" if options.lossless else "jpeg"}
     rec = open_recorder(options, {c: cam.model for c, cam in asm.cameras.items()},
-                        virtual=virtual, t_ns=asm.clock.now_ns(), metadata=meta)
+                        virtual=virtual, t_ns=t0_ns, metadata=meta)
+    tap = getattr(asm.vehicle, "inner", None)
+    if isinstance(tap, VehicleTap):  # what the mission gets from the vehicle (replay)
+        tap.bind(rec.message)
     return rec, dataclasses.replace(hooks, recorder=rec)

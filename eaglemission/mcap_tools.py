@@ -197,3 +197,34 @@ def summarize(path: str | Path) -> list[str]:
         out.append(f"camera {cam}: {n['grabbed']} frames grabbed = {n['processed']} processed + "
                    f"{n['skipped']} skipped + {n['dropped']} dropped")
     return out
+
+
+def metadata(path: str | Path) -> dict[str, str]:
+    """The recording's ``eaglemission`` metadata (config hash, clock, ``t0_ns``...), read
+    from the head of its first file only."""
+    for rec in scan(path, Scan()):
+        if isinstance(rec, Metadata) and rec.name == "eaglemission":
+            return dict(rec.metadata)
+        if isinstance(rec, Message):
+            break
+    return {}
+
+
+def start_ns(path: str | Path) -> int | None:
+    """Where the recorded mission's clock stood when recording began (metadata ``t0_ns``,
+    else the ``start`` record); None: no recorded mission in the file."""
+    t0 = metadata(path).get("t0_ns")
+    if t0 is not None:
+        return int(t0)
+    for topic, rec in messages(path):
+        if topic == "/log/start":
+            return int(rec.log_time)
+    return None
+
+
+def log_records(path: str | Path, kinds: tuple[str, ...] | None = None
+                ) -> Iterator[dict[str, Any]]:
+    """The mission-log records of a recording (``/log/<kind>``), in file order."""
+    for topic, rec in messages(path):
+        if topic.startswith("/log/") and (kinds is None or topic[5:] in kinds):
+            yield json.loads(rec.data)

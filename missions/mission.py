@@ -142,6 +142,13 @@ class ApproachMission:
         self.runner: MissionRunner | None = None
         self._interrupt: tuple[str, str] | None = None
 
+    @staticmethod
+    def plot_recording(records: list[dict[str, Any]], cfg: MissionFile, path: Path) -> None:
+        """``eaglemission log --plot``: the figure of ``run --plot`` from a recording."""
+        from eaglemission.missions.plot import plot_recording
+
+        plot_recording(records, cfg, path)
+
     @property
     def state(self) -> MissionState | None:
         return None if self.runner is None else self.runner.machine.state

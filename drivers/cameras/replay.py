@@ -7,7 +7,9 @@ Sources (``Config.path``), detected in this order:
   recorded ``timestamp_ns`` (they match the run's ``telemetry.jsonl``);
 * a **DAVIS-layout sequence** (``<path>/frames/*.jpg``) or any **image folder**
   (``*.png|*.jpg|*.jpeg|*.bmp|*.tif*``, natural name order);
-* a **video file** (anything ``cv2.VideoCapture`` opens: mp4v .mp4, MJPG/XVID .avi).
+* a **video file** (anything ``cv2.VideoCapture`` opens: mp4v .mp4, MJPG/XVID .avi);
+* an **MCAP flight recording** (``FILE.mcap``, ``run --record``): the camera's processed
+  frames with their recorded stamps (:mod:`.replay_mcap`).
 
 Without recorded stamps, frame ``k`` is stamped ``start_ns + k / frame_rate_hz`` (the video's
 own rate when ``frame_rate_hz`` is unset). Pacing ``as_fast_as_consumed`` hands the next
@@ -34,6 +36,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+from eaglemission.drivers.cameras.replay_mcap import McapFrames
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -41,6 +44,7 @@ from eaglemission.clock import Clock
 from eaglemission.context import REPLAY_EPOCH_NS, SharedContext
 from eaglemission.errors import CameraError, ConfigError, EndOfStream, FrameError, GrabTimeout
 from eaglemission.geometry import CameraModel
+from eaglemission.mcap_tools import start_ns as mcap_start_ns
 from eaglemission.recording import FRAMES_CSV, recording_start_ns
 from eaglemission.recording import RunRecorder as Recorder
 from eaglemission.types import Frame
@@ -119,6 +123,7 @@ class ReplayCamera:
         self._lock = threading.Lock()
         self._entries: list[_Entry] | None = None
         self._video: cv2.VideoCapture | None = None
+        self._mcap: McapFrames | None = None
         self._video_fps = 30.0
         self._video_count = -1
         self._index = 0
@@ -143,6 +148,11 @@ class ReplayCamera:
         if not p.exists():
             raise ConfigError(f"cameras.{self.camera_id}.params.path: {str(p)!r} does not "
                               "exist: give a recorded run, an image folder or a video file")
+        if p.is_file() and p.suffix.lower() == ".mcap":
+            self._mcap = McapFrames(p, cam, where=f"cameras.{self.camera_id}.params.path")
+            self._entries = [_Entry(None, ts, exp, seq) for seq, ts, exp in self._mcap.entries]
+            self.kind = "mcap"
+            return
         if p.is_file():
             cap = cv2.VideoCapture(str(p))
             if not cap.isOpened():
@@ -177,6 +187,7 @@ class ReplayCamera:
                 self._video.release()
             self._video = None
             self._entries = None
+            self._mcap = None
             self._index = 0
             self._served = 0
             self._wall0 = self._ts0 = None
@@ -240,12 +251,22 @@ class ReplayCamera:
     def _end(self) -> None:
         raise EndOfStream(self.camera_id, self._served)
 
+    def _read(self, k: int, e: _Entry) -> NDArray[np.uint8]:
+        """The checked image of entry ``k``."""
+        if self._mcap is not None:
+            return self._check(self._mcap.image(k), f"{self.config.path} frame {e.seq}")
+        img = cv2.imread(str(e.path), cv2.IMREAD_COLOR) if e.path is not None else None
+        return self._check(img, str(e.path))
+
     def _grab_due(self, timeout_s: float) -> Frame:
         """``pacing: clock``: the newest frame due on the flight's clock."""
         assert self._entries is not None and self.clock is not None
-        if self._index >= len(self._entries):
-            self._end()
         due_ns = int(self.clock.now_ns()) - self._epoch_ns
+        if self._index >= len(self._entries):
+            if self._mcap is not None and due_ns <= self._mcap.end_ns:
+                self.stats["timeouts"] += 1  # the recorded flight goes on without frames
+                raise GrabTimeout(self.camera_id, timeout_s)
+            self._end()
         k = self._index
         if self._entries[k].timestamp_ns > due_ns:
             self.stats["timeouts"] += 1
@@ -255,8 +276,7 @@ class ReplayCamera:
         self.stats["skipped"] = self.stats.get("skipped", 0) + (k - self._index)
         e = self._entries[k]
         self._index = k + 1
-        img = cv2.imread(str(e.path), cv2.IMREAD_COLOR) if e.path is not None else None
-        img = self._check(img, str(e.path))
+        img = self._read(k, e)
         self._served += 1
         self.stats["frames"] += 1
         return Frame(img, e.timestamp_ns + self._epoch_ns, self.camera_id, e.seq,
@@ -280,8 +300,7 @@ class ReplayCamera:
             ts += int(self.stats["loops"] * (span + period))
         self._pace(ts, timeout_s)
         self._index += 1  # a bad frame is skipped by the next grab
-        img = cv2.imread(str(e.path), cv2.IMREAD_COLOR) if e.path is not None else None
-        img = self._check(img, str(e.path))
+        img = self._read(self._index - 1, e)
         self._served += 1
         self.stats["frames"] += 1
         seq = e.seq + (self.stats["loops"] * len(self._entries) if self.config.loop else 0)
@@ -321,7 +340,8 @@ def replay_epoch_ns(shared: SharedContext | None, clock: Clock, run_dir: Path) -
     by the first one built: at that instant the flight's clock stands at the recording's first
     stamp in virtual time, so the offset is 0 there)."""
     def make() -> int:
-        start = recording_start_ns(run_dir)
+        start = (mcap_start_ns(run_dir) if run_dir.suffix.lower() == ".mcap"
+                 else recording_start_ns(run_dir))
         return 0 if start is None else int(clock.now_ns()) - start
 
     return make() if shared is None else shared.get_or_create(REPLAY_EPOCH_NS, make)

@@ -9,6 +9,13 @@ the recording's first stamp (:meth:`ReplayVehicle.start_time_ns`), so stamps are
 recording's; in real time they are shifted by one offset shared with the replay cameras.
 After the last record the vehicle reports its last state with the link down. ``armable`` is
 reported true throughout (the recorded flight arms anyway: the gate means nothing open loop).
+
+An MCAP recording (``path: flight.mcap``, ``run --record``) holds what the flight's vehicle
+answered the mission (:mod:`.replay_mcap`): states, lookups, events, command and parameter
+results are answered as recorded, by time, and nothing is added (no open-loop events), so a
+replay that asks the same questions gets the same answers (``eaglemission replay``); only
+``armable`` stays true while the recorded vehicle is armed (a replay whose preflight ends later
+than the flight's would wait for a vehicle that armed already).
 """
 
 from __future__ import annotations
@@ -19,11 +26,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from eaglemission.drivers.vehicles.replay_mcap import McapVehicleLog
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.context import REPLAY_EPOCH_NS, SharedContext
 from eaglemission.errors import ConfigError, VehicleError
+from eaglemission.mcap_tools import start_ns as mcap_start_ns
 from eaglemission.recording import read_telemetry, recording_start_ns
 from eaglemission.telemetry import TelemetryHistory
 from eaglemission.types import (
@@ -41,7 +50,8 @@ EVENT_REPLAY = "replay"  # a command the open-loop replay accepted and ignored; 
 class ReplayVehicleConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    path: str = Field(description="recorded run folder (its telemetry.jsonl)")
+    path: str = Field(description="recorded run folder (its telemetry.jsonl) or MCAP "
+                                  "recording (FILE.mcap)")
 
 
 class ReplayVehicle:
@@ -54,11 +64,13 @@ class ReplayVehicle:
     @classmethod
     def start_time_ns(cls, config: ReplayVehicleConfig) -> int | None:
         """Where a virtual-time flight's clock starts: the recording's first stamp."""
-        return recording_start_ns(Path(config.path).expanduser())
+        return _start_ns(Path(config.path).expanduser())
 
     @classmethod
     def config_problems(cls, mission: Any, path: str) -> list[str]:
         run = Path(str(mission.vehicle.params.get("path", ""))).expanduser()
+        if run.suffix.lower() == ".mcap":
+            return [] if run.is_file() else [f"{path}.params.path: {str(run)!r} does not exist"]
         if not (run / "telemetry.jsonl").exists():
             return [f"{path}.params.path: {str(run)!r} holds no recorded run (telemetry.jsonl):"
                     " record one with `eaglemission run --record DIR`"]
@@ -71,7 +83,7 @@ class ReplayVehicle:
         self.config = config
         self.clock: Clock = clock or MonotonicClock()
         self._run = Path(config.path).expanduser()
-        start = recording_start_ns(self._run)
+        start = _start_ns(self._run)
         if start is None:
             raise ConfigError(f"vehicle.params.path: {str(self._run)!r} holds no recorded run")
 
@@ -87,10 +99,17 @@ class ReplayVehicle:
         self._lock = threading.Lock()
         self._ended = False
         self._connected = False
+        self._mcap: McapVehicleLog | None = None
 
     # -- lifetime --------------------------------------------------------------------------
     async def connect(self) -> None:
         if self._connected:
+            return
+        if self._run.suffix.lower() == ".mcap":
+            self._mcap = McapVehicleLog(self._run)
+            self._history = self._mcap.history
+            self._first, self._last = self._mcap.states[0][1], self._mcap.states[-1][1]
+            self._connected = True
             return
         try:
             states = read_telemetry(self._run)
@@ -119,6 +138,15 @@ class ReplayVehicle:
     def summary(self) -> str:
         return f"recording {self._run}, open loop"
 
+    def __getattr__(self, name: str) -> Any:
+        mcap: McapVehicleLog | None = self.__dict__.get("_mcap")
+        if name in ("get_param", "set_param") and mcap is not None:
+            async def call(*args: Any) -> float:
+                return mcap.param(name, *args)
+
+            return call
+        raise AttributeError(name)
+
     # -- telemetry -------------------------------------------------------------------------
     def _shift(self, st: VehicleState) -> VehicleState:
         if not self._epoch_ns:
@@ -134,6 +162,13 @@ class ReplayVehicle:
         h = self._require("state()")
         assert self._first is not None and self._last is not None
         now = int(self.clock.now_ns())
+        if self._mcap is not None:
+            rec = now - self._epoch_ns
+            self._mcap.advance(rec)
+            cur = self._shift(self._mcap.current)
+            if cur.armed and not cur.armable:  # armed already: see _open_loop
+                cur = dataclasses.replace(cur, armable=True)
+            return cur if rec <= self._mcap.end_ns else dataclasses.replace(cur, link_ok=False)
         if now < self._first.timestamp_ns:
             return _open_loop(self._first)
         if now > self._last.timestamp_ns:
@@ -147,9 +182,16 @@ class ReplayVehicle:
         return _open_loop(st if st is not None else self._last)
 
     def state_at(self, timestamp_ns: int) -> VehicleState | None:
-        return self._require("state_at()").state_at(timestamp_ns)
+        h = self._require("state_at()")
+        if self._mcap is not None:
+            found = self._mcap.state_at(timestamp_ns - self._epoch_ns,
+                                        int(self.clock.now_ns()) - self._epoch_ns)
+            return None if found is None else self._shift(found)
+        return h.state_at(timestamp_ns)
 
     def events(self) -> Sequence[VehicleEvent]:
+        if self._mcap is not None:
+            return tuple(self._mcap.events_until(int(self.clock.now_ns()) - self._epoch_ns))
         with self._lock:
             return tuple(self._events)
 
@@ -159,6 +201,9 @@ class ReplayVehicle:
     # -- commands: accepted, not flown -------------------------------------------------------
     def _ignored(self, origin: str) -> None:
         self._require(origin)
+        if self._mcap is not None:  # the recorded result; nothing added
+            self._mcap.command(origin.removesuffix("()"))
+            return
         with self._lock:
             self._events.append(VehicleEvent(int(self.clock.now_ns()), EVENT_REPLAY,
                                              f"{origin}: accepted (open loop: the recorded "
@@ -187,6 +232,8 @@ class ReplayVehicle:
 
     async def set_setpoint(self, setpoint: Setpoint) -> None:
         self._require("set_setpoint()")  # streamed at 20 Hz: not logged one by one
+        if self._mcap is not None:
+            self._mcap.command("set_setpoint")
 
     async def stop_offboard(self) -> None:
         self._ignored("stop_offboard()")
@@ -205,6 +252,12 @@ class ReplayVehicle:
 
     async def release(self) -> None:
         self._ignored("release()")
+
+
+def _start_ns(path: Path) -> int | None:
+    if path.suffix.lower() == ".mcap":
+        return mcap_start_ns(path) if path.is_file() else None
+    return recording_start_ns(path)
 
 
 def _open_loop(st: VehicleState) -> VehicleState:

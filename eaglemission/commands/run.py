@@ -41,6 +41,9 @@ def _add(p: argparse.ArgumentParser) -> None:
     p.add_argument("--record-quality", metavar="Q", type=int, default=None,
                    help="JPEG quality of the MCAP recording's images (1-100; default the "
                         "config's recording.quality, else 75)")
+    p.add_argument("--record-lossless", action="store_true",
+                   help="PNG images in the MCAP recording instead of JPEG: larger, and "
+                        "`eaglemission replay` reproduces the flight exactly")
     p.add_argument("--no-record", action="store_true",
                    help="do not record, even when the config's `recording` section says so")
     p.add_argument("--live", metavar="HOST:PORT", nargs="?", const="",
@@ -120,15 +123,18 @@ def _confirm(question: str) -> bool:
     return answer.strip().lower() in ("y", "yes")
 
 
-def _record_options(section: Any, path: Path, quality: int | None) -> Any:
+def _record_options(section: Any, path: Path, quality: int | None, lossless: bool = False
+                    ) -> Any:
     """``--record FILE.mcap``: the config's ``recording`` settings (quality, splitting, disk
     check) with this path; ``--record-quality`` over the config's quality."""
     from eaglemission.mcap_record import RecordOptions
 
     if section is None:
-        return RecordOptions(path, jpeg_quality=75 if quality is None else quality)
+        return RecordOptions(path, jpeg_quality=75 if quality is None else quality,
+                             lossless=lossless)
     return RecordOptions(path, jpeg_quality=section.quality if quality is None else quality,
-                         split_mb=section.split_mb, min_free_mb=section.min_free_mb)
+                         split_mb=section.split_mb, min_free_mb=section.min_free_mb,
+                         lossless=lossless)
 
 
 def _live_options(args: argparse.Namespace, section: Any) -> Any:
@@ -200,7 +206,8 @@ def _run(args: argparse.Namespace) -> int:
         if args.record_quality is not None and not 1 <= args.record_quality <= 100:
             _print(err, "error: --record-quality: 1..100")
             return assembly.EXIT_CONFIG
-        record_mcap = _record_options(cfg.recording, Path(args.record), args.record_quality)
+        record_mcap = _record_options(cfg.recording, Path(args.record), args.record_quality,
+                                      args.record_lossless)
     elif args.record:
         from eaglemission.recording import RunRecorder
 
