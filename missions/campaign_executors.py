@@ -45,6 +45,9 @@ WALL_TIME_FIELDS = ("speedup", "latency_p90_ms")
 STALL_TIMEOUT_S = 3600.0
 """No run finishing for this long ends the campaign with an error (a hung worker)."""
 
+RAY_INIT_ATTEMPTS = 3
+"""Tries to start or reach Ray: a loaded host can miss Ray's own 30 s raylet start timeout."""
+
 PLUGIN_PACKAGES = ("drivers", "detectors", "estimators", "missions", "configs")
 """The plugin folders installed as ``eaglemission.<name>`` (pyproject ``package-dir``)."""
 
@@ -184,13 +187,17 @@ class RayExecutor:
             if own:
                 kw: dict[str, Any] = {"address": self.address} if self.address else \
                     {"num_cpus": self.workers}
-                try:
-                    ray.init(**kw, runtime_env=env, include_dashboard=False,
-                             log_to_driver=False, logging_level=logging.WARNING)
-                except Exception as exc:  # ConnectionError, RuntimeError...: say where
-                    raise CampaignExecutorError(
-                        f"ray executor: cannot start Ray at "
-                        f"{self.address or 'local'}: {type(exc).__name__}: {exc}") from exc
+                for attempt in range(1, RAY_INIT_ATTEMPTS + 1):
+                    try:
+                        ray.init(**kw, runtime_env=env, include_dashboard=False,
+                                 log_to_driver=False, logging_level=logging.WARNING)
+                        break
+                    except Exception as exc:  # ConnectionError, a slow raylet...: say where
+                        ray.shutdown()
+                        if attempt == RAY_INIT_ATTEMPTS:
+                            raise CampaignExecutorError(
+                                f"ray executor: cannot start Ray at {self.address or 'local'} "
+                                f"({attempt} attempts): {type(exc).__name__}: {exc}") from exc
             task = ray.remote(_ray_task).options(num_cpus=1, runtime_env=None if own else env)
             pending = [task.remote(fn, job) for job in jobs]
             try:
