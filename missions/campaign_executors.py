@@ -101,7 +101,7 @@ class LocalExecutor:
     name: str = "local"
 
     def map_unordered(self, fn: RunFn, jobs: Sequence[Job]) -> Iterator[dict[str, Any]]:
-        if self.workers <= 1:
+        if self.workers <= 1 or not jobs:
             yield from map(fn, jobs)
             return
         with _thread_env():
@@ -176,6 +176,8 @@ class RayExecutor:
     name: str = "ray"
 
     def map_unordered(self, fn: RunFn, jobs: Sequence[Job]) -> Iterator[dict[str, Any]]:
+        if not jobs:  # a resumed campaign with every run stored: no Ray to start
+            return
         ray = import_ray()
         import logging
 
