@@ -187,8 +187,9 @@ class RayExecutor:
             if self.address is not None:
                 env["working_dir"] = str(stage_project(Path(tmp) / "project"))
             if own:
+                # "local": a new local Ray, never a cluster found via RAY_ADDRESS or `ray start`
                 kw: dict[str, Any] = {"address": self.address} if self.address else \
-                    {"num_cpus": self.workers}
+                    {"address": "local", "num_cpus": self.workers}
                 for attempt in range(1, RAY_INIT_ATTEMPTS + 1):
                     try:
                         ray.init(**kw, runtime_env=env, include_dashboard=False,
