@@ -4,19 +4,23 @@ Each run draws, from ``np.random.RandomState(seed + run)``: target position (alo
 +-3 m across it) and heading, ground texture, 0-2 distractors, lighting gain, wind (0-3 m/s, any
 direction), camera mount error (up to 2 deg, drawn by the world per camera), focal error (up
 to 3%), camera-to-telemetry offset (0-40 ms) and the world seed. Runs are independent processes
-(``--workers``, default 2); the evaluator judges every run against the truth.
+(``--workers``, default 2) of a local pool or Ray tasks (``--executor ray``,
+:mod:`~eaglemission.missions.campaign_executors`); the evaluator judges every run against the
+truth. ``--out DIR`` keeps each finished run there and resumes from it.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import multiprocessing as mp
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from eaglemission.missions.campaign_executors import Executor, make_executor
+from eaglemission.missions.campaign_resume import RunStore
 
 from eaglemission.assembly import build_world
 from eaglemission.config import MissionFile, load_config
@@ -85,44 +89,52 @@ class CampaignSummary:
 
 
 def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
-                 out_dir: str | None = None, progress: bool = False) -> CampaignSummary:
+                 out_dir: str | None = None, progress: bool = False,
+                 executor: str | Executor = "local",
+                 address: str | None = None) -> CampaignSummary:
+    """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
+    :class:`~eaglemission.missions.campaign_executors.Executor`); with ``out_dir`` each finished
+    run is stored there and a rerun flies only the missing ones
+    (:mod:`eaglemission.missions.campaign_resume`)."""
     base = load_config(config)
     rng = np.random.RandomState(seed)
     jobs = []
     for i in range(runs):
         cfg = randomise(base, np.random.RandomState(int(rng.randint(0, 2**31 - 1))))
         jobs.append((i, cfg.model_dump(mode="json"), out_dir))
-    if out_dir is not None:
-        Path(out_dir).mkdir(parents=True, exist_ok=True)
+    ex = make_executor(executor, workers=workers, address=address) \
+        if isinstance(executor, str) else executor
+    store = None if out_dir is None else \
+        RunStore.open(out_dir, seed=seed, base_cfg=base.model_dump(mode="json"))
+    results: list[dict[str, Any]] = []
+    if store is not None:
+        stored = {j[0]: store.finished(j[0], j[1]) for j in jobs}
+        results = [r for r in stored.values() if r is not None]
+        jobs = [j for j in jobs if stored[j[0]] is None]
+    cfg_of = {j[0]: j[1] for j in jobs}
     summary = CampaignSummary()
-    ctx = mp.get_context("spawn")
     bar = None
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
         bar = Progress("[progress.description]{task.description}", BarColumn(),
                        MofNCompleteColumn(), TimeElapsedColumn())
-    results: list[dict[str, Any]] = []
-    if workers <= 1:
-        it: Any = map(_one_run, jobs)
-        pool = None
+
+    def flown() -> Iterator[dict[str, Any]]:
+        for r in ex.map_unordered(_one_run, jobs):
+            if store is not None:
+                store.save(r["run"], cfg_of[r["run"]], r)
+            yield r
+
+    if bar is not None:
+        with bar:
+            task = bar.add_task(f"campaign ({ex.name})", total=runs, completed=len(results))
+            for r in flown():
+                results.append(r)
+                ok = sum(x["success"] for x in results)
+                bar.update(task, advance=1, description=f"campaign ({ex.name}, {ok} ok)")
     else:
-        pool = ctx.Pool(workers, maxtasksperchild=5)
-        it = pool.imap_unordered(_one_run, jobs)
-    try:
-        if bar is not None:
-            with bar:
-                task = bar.add_task("campaign", total=runs)
-                for r in it:
-                    results.append(r)
-                    ok = sum(x["success"] for x in results)
-                    bar.update(task, advance=1, description=f"campaign ({ok} ok)")
-        else:
-            results.extend(it)
-    finally:
-        if pool is not None:
-            pool.close()
-            pool.join()
+        results.extend(flown())
     summary.runs = sorted(results, key=lambda r: r["run"])
     if out_dir is not None:
         (Path(out_dir) / "summary.json").write_text(json.dumps(summary.as_dict(), indent=1,

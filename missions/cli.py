@@ -14,17 +14,29 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=int, default=50, help="number of randomised runs")
     p.add_argument("--seed", type=int, default=0, help="campaign seed")
     p.add_argument("--workers", type=int, default=2, help="parallel processes")
-    p.add_argument("--out", metavar="DIR", help="write one log per run and summary.json here")
+    p.add_argument("--out", metavar="DIR", help="write one log and result per run and "
+                   "summary.json here; run again with the same DIR to resume")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local process pool, or Ray tasks (pip install 'eaglemission[ray]')")
+    p.add_argument("--address", metavar="ADDR", help="Ray cluster to run on (--executor ray; "
+                   "default: a local Ray with --workers CPUs)")
 
 
 def _campaign(args: argparse.Namespace) -> int:
     from eaglemission.missions.campaign import print_summary, run_campaign
+    from eaglemission.missions.campaign_executors import CampaignExecutorError
+    from eaglemission.missions.campaign_resume import CampaignResumeError
 
     if args.runs < 1:
         print("error: --runs must be >= 1", file=sys.stderr)
         return 2
-    summary = run_campaign(args.config, runs=args.runs, seed=args.seed, workers=args.workers,
-                           out_dir=args.out, progress=True)
+    try:
+        summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
+                               workers=args.workers, out_dir=args.out, progress=True,
+                               executor=args.executor, address=args.address)
+    except (CampaignExecutorError, CampaignResumeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     print_summary(summary)
     return 0
 

@@ -1,0 +1,161 @@
+"""Campaign executors and resume: the Ray executor's summary equals the local pool's apart from
+wall-time fields, and a campaign resumes from its output folder flying only the missing runs.
+
+The campaign flies the fast config (``fast_config``: MSS at 1/2 resolution) shrunk so that a run
+takes a few CPU seconds: 320x240 cameras at 10 Hz, an 8 m route at 3 m."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from eaglemission.missions.campaign import CampaignSummary, run_campaign
+from eaglemission.missions.campaign_executors import (
+    WALL_TIME_FIELDS,
+    CampaignExecutorError,
+    LocalExecutor,
+    RunFn,
+    flight_fields,
+    make_executor,
+    stage_project,
+)
+from eaglemission.missions.campaign_resume import MANIFEST, CampaignResumeError, result_path
+from mission_helpers import variant
+
+from eaglemission.config import MissionFile, load_config
+
+SEED = 4
+RUNS = 3
+
+
+def _small_config() -> MissionFile:
+    """The ``fast_config`` fixture's mission, shrunk (module-scoped fixtures cannot use it)."""
+    cfg = variant(load_config(check_plugins=False),
+                  detector={"type": "mss", "params": {"downscale": 2}})
+    d = cfg.model_dump(mode="json")
+    for cam in d["cameras"].values():
+        cam["resolution_px"], cam["pixel_size_um"] = [320, 240], 15.0
+    d["mission"]["route"][1]["north_m"] = 8.0
+    d["mission"]["cruise_altitude_m"] = 3.0
+    d["world"]["params"]["frame_rate_hz"] = 10.0
+    return MissionFile.model_validate(d)
+
+
+def _json(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """As stored in summary.json (tuples become lists)."""
+    out: list[dict[str, Any]] = json.loads(json.dumps(runs, default=str))
+    return out
+
+
+@pytest.fixture(scope="module")
+def small_yaml(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cfg") / "small.yaml"
+    path.write_text(yaml.safe_dump(_small_config().model_dump(mode="json"), sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def local_run(small_yaml: Path, tmp_path_factory: pytest.TempPathFactory
+              ) -> tuple[CampaignSummary, Path]:
+    """The campaign on the local pool (2 workers), uninterrupted, with its output folder."""
+    out = tmp_path_factory.mktemp("local")
+    return run_campaign(str(small_yaml), runs=RUNS, seed=SEED, workers=2, out_dir=str(out)), out
+
+
+@pytest.mark.slow
+def test_ray_summary_equals_the_local_pools(small_yaml: Path, local_run: tuple[CampaignSummary,
+                                            Path], tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    local, _ = local_run
+    ray = run_campaign(str(small_yaml), runs=RUNS, seed=SEED, workers=2, executor="ray",
+                       out_dir=str(tmp_path))
+    assert local.n == ray.n == RUNS
+    assert any(r["reached_grasp_ready"] for r in local.runs)  # they flew the mission
+    for r in local.runs + ray.runs:  # the wall-time fields exist: only they are left out
+        assert all(r[k] is not None for k in WALL_TIME_FIELDS), r
+    assert _json(flight_fields(ray.runs)) == _json(flight_fields(local.runs))
+    assert (ray.success_rate, ray.violations) == (local.success_rate, local.violations)
+    stored = json.loads((tmp_path / "summary.json").read_text())
+    assert flight_fields(stored["runs"]) == _json(flight_fields(local.runs))
+
+
+class _Recording:
+    """The local pool, noting which runs it was given."""
+
+    def __init__(self) -> None:
+        self.inner, self.flown, self.name = LocalExecutor(workers=2), [], "local"
+
+    def map_unordered(self, fn: RunFn, jobs: Sequence[Any]) -> Iterator[dict[str, Any]]:
+        self.flown.extend(j[0] for j in jobs)
+        return self.inner.map_unordered(fn, jobs)
+
+
+@pytest.mark.slow
+def test_an_interrupted_campaign_resumes_from_its_folder(
+        small_yaml: Path, local_run: tuple[CampaignSummary, Path], tmp_path: Path) -> None:
+    full, full_dir = local_run
+    # what an interrupted campaign leaves: its manifest, runs 0 and 2, a torn write of run 1
+    shutil.copy(full_dir / MANIFEST, tmp_path / MANIFEST)
+    for i in (0, 2):
+        shutil.copy(result_path(full_dir, i), result_path(tmp_path, i))
+    torn = result_path(tmp_path, 1)
+    torn.write_text(result_path(full_dir, 1).read_text()[:100])
+    ex = _Recording()
+    resumed = run_campaign(str(small_yaml), runs=RUNS, seed=SEED, out_dir=str(tmp_path),
+                           executor=ex)
+    assert ex.flown == [1]
+    assert sorted(p.name for p in tmp_path.glob("run_*.jsonl")) == ["run_001.jsonl"]
+    assert _json(flight_fields(resumed.runs)) == _json(flight_fields(full.runs))
+    assert _json([resumed.runs[0], resumed.runs[2]]) == _json([full.runs[0], full.runs[2]])
+    # resuming a finished campaign flies nothing
+    again = _Recording()
+    run_campaign(str(small_yaml), runs=RUNS, seed=SEED, out_dir=str(tmp_path), executor=again)
+    assert again.flown == []
+
+
+def test_a_folder_of_another_campaign_is_refused(
+        small_yaml: Path, local_run: tuple[CampaignSummary, Path], tmp_path: Path) -> None:
+    _, full_dir = local_run
+    with pytest.raises(CampaignResumeError, match=r"holds another campaign \(seed 4 there, 5 now"):
+        run_campaign(str(small_yaml), runs=RUNS, seed=SEED + 1, out_dir=str(full_dir),
+                     executor=_Recording())
+    # same manifest, but run 1 stored for another config
+    shutil.copy(full_dir / MANIFEST, tmp_path / MANIFEST)
+    rec = json.loads(result_path(full_dir, 1).read_text())
+    rec["config_sha256"] = "0" * 64
+    result_path(tmp_path, 1).write_text(json.dumps(rec))
+    ex = _Recording()
+    with pytest.raises(CampaignResumeError, match=r"run_001\.result\.json: stored for run 1.*"
+                                                  r"use another --out"):
+        run_campaign(str(small_yaml), runs=RUNS, seed=SEED, out_dir=str(tmp_path), executor=ex)
+    assert ex.flown == []
+
+
+def test_the_ray_executor_without_ray_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # what `import ray` sees without the extra
+    with pytest.raises(CampaignExecutorError, match=r"pip install 'eaglemission\[ray\]'"):
+        make_executor("ray")
+    with pytest.raises(CampaignExecutorError, match="--address: only for --executor ray"):
+        make_executor("local", address="10.0.0.1:6379")
+
+
+def test_the_staged_project_imports_with_its_plugins(tmp_path: Path) -> None:
+    """What a cluster's worker gets as its working_dir: the package with its plugin folders and
+    entry points, imported from there (not from this checkout)."""
+    staged = stage_project(tmp_path / "project")
+    probe = ("import importlib.metadata as m, eaglemission.missions.campaign as c, "
+             "eaglemission.registry as r; d = next(iter(m.distributions(name='eaglemission')));"
+             "print(c.__file__, d.locate_file(''), r.get('detectors', 'mss').__module__)")
+    p = subprocess.run([sys.executable, "-c", probe], cwd=staged, capture_output=True,
+                       text=True, timeout=120, env={"PYTHONPATH": str(staged), "PATH": ""})
+    assert p.returncode == 0, p.stderr[-2000:]
+    module_file, dist_dir, plugin = p.stdout.split()
+    assert Path(module_file).is_relative_to(staged) and (staged / dist_dir).resolve() == staged
+    assert plugin == "eaglemission.detectors.mss"
