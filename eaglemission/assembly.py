@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import autopilot_guard, mcap_record, registry
+from eaglemission import autopilot_guard, fault_injection, mcap_record, registry
 from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import BoundLoopClock, Clock, run_blocking, run_virtual
 from eaglemission.config import MissionFile, merge_params
@@ -145,6 +145,8 @@ class Assembly:
     fitter: PlaneFitter | None = None
     tracker: Tracker | None = None
     guard: AutopilotGuard | None = None
+    faults: fault_injection.FaultInjector | None = None
+    """Injects the config's ``faults:`` section (docs/faults.md), None without one."""
 
     def parts(self, *, realtime: bool) -> FlightParts:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
@@ -230,8 +232,10 @@ def assemble(cfg: MissionFile, clock: Clock, *,
     ts = cfg.tracker
     tracker = None if ts is None else registry.load("trackers", ts.type, ts.params,
                                                     target=cfg.target)
-    return Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
-                    fitter=fitter, tracker=tracker)
+    asm = Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
+                   fitter=fitter, tracker=tracker)
+    asm.faults = fault_injection.attach(asm)  # wraps the parts the faults live in
+    return asm
 
 
 # ---------------------------------------------------------------------------------------------
@@ -481,7 +485,8 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         if refused:  # nothing armed; what was set already is restored below
             result.exit_code, result.error = EXIT_PREFLIGHT, refused
             return result
-        recorder, hooks = mcap_record.flight_recorder(cfg, record, asm, virtual, opt.hooks)
+        recorder, hooks = mcap_record.flight_recorder(
+            cfg, record, asm, virtual, fault_injection.with_hooks(asm.faults, opt.hooks))
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
                                 parts=asm.parts(realtime=not virtual), hooks=hooks)
         interrupts.mission = mission

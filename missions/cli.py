@@ -15,17 +15,29 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="campaign seed")
     p.add_argument("--workers", type=int, default=2, help="parallel processes")
     p.add_argument("--out", metavar="DIR", help="write one log per run and summary.json here")
+    p.add_argument("--faults", metavar="KINDS", help="inject one fault per run: 'all' or "
+                   "kind1,kind2 (docs/faults.md); exit 1 when a run misses its expected outcome")
 
 
 def _campaign(args: argparse.Namespace) -> int:
     from eaglemission.missions.campaign import print_summary, run_campaign
+    from eaglemission.missions.campaign_faults import parse_kinds, print_fault_table
 
     if args.runs < 1:
         print("error: --runs must be >= 1", file=sys.stderr)
         return 2
+    kinds = None
+    if args.faults is not None:
+        try:
+            kinds = parse_kinds(args.faults)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     summary = run_campaign(args.config, runs=args.runs, seed=args.seed, workers=args.workers,
-                           out_dir=args.out, progress=True)
+                           out_dir=args.out, progress=True, faults=kinds)
     print_summary(summary)
+    if kinds is not None:
+        return 1 if print_fault_table(summary.runs) else 0
     return 0
 
 
