@@ -79,7 +79,8 @@ def test_campaign_with_faults_prints_the_table_and_fails_a_missed_outcome(
                           capture_output=True, text=True, timeout=600)
     assert "per fault kind" in proc.stdout, proc.stderr[-2000:]
     line = next(x for x in proc.stdout.splitlines() if "runs in their expected outcome" in x)
-    ok = int(line.split(":")[1].split("/")[0])
+    ok, total = (int(x) for x in line.split(":")[1].split("/"))
+    assert total == 4
     assert proc.returncode == (0 if ok == 4 else 1), proc.stdout[-3000:]
     bad = subprocess.run([sys.executable, "-m", "eaglemission.cli", "campaign", str(cfg),
                           "--faults", "camera_dorp", "--runs", "1"],
