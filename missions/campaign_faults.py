@@ -161,7 +161,7 @@ def print_fault_table(runs: list[dict[str, Any]]) -> int:
                   ", ".join(f"{k} {v}" for k, v in sorted(r["end_states"].items())),
                   f"{r['matches']}/{r['runs']}", safe, str(r["violations"]),
                   f"{r['log_complete']}/{r['runs']}")
-    c = Console()
+    c = Console(width=max(Console().width, 150))  # the table is wide; logs are not terminals
     c.print(t)
     tol = [r for r in runs if r.get("expected") == COMPLETE]
     if tol:
