@@ -25,15 +25,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import os
-import signal
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import autopilot_guard, live, mcap_record, registry
+from eaglemission import autopilot_guard, fault_injection, live, mcap_record, registry
 from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import BoundLoopClock, Clock, run_blocking, run_virtual
 from eaglemission.config import MissionFile, merge_params
@@ -54,6 +51,7 @@ from eaglemission.interfaces import (
     Tracker,
     World,
 )
+from eaglemission.interrupts import EXIT_INTERRUPTED, FlightInterrupts
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.safety import SafeVehicle
 from eaglemission.types import XYZ, Quat
@@ -72,8 +70,8 @@ EXIT_CONNECTION = 4
 EXIT_PREFLIGHT = 5
 EXIT_TRUTH_FAILED = 6
 EXIT_REPLAY_DIVERGED = 7
+# EXIT_INTERRUPTED = 130 (eaglemission.interrupts)
 """``eaglemission replay``: the replay's setpoints or state changes differ from the recording."""
-EXIT_INTERRUPTED = 130
 
 
 # ---------------------------------------------------------------------------------------------
@@ -148,6 +146,8 @@ class Assembly:
     fitter: PlaneFitter | None = None
     tracker: Tracker | None = None
     guard: AutopilotGuard | None = None
+    faults: fault_injection.FaultInjector | None = None
+    """Injects the config's ``faults:`` section (docs/faults.md), None without one."""
 
     def parts(self, *, realtime: bool) -> FlightParts:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
@@ -235,8 +235,10 @@ def assemble(cfg: MissionFile, clock: Clock, *,
     ts = cfg.tracker
     tracker = None if ts is None else registry.load("trackers", ts.type, ts.params,
                                                     target=cfg.target)
-    return Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
-                    fitter=fitter, tracker=tracker)
+    asm = Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
+                   fitter=fitter, tracker=tracker)
+    asm.faults = fault_injection.attach(asm)  # wraps the parts the faults live in
+    return asm
 
 
 # ---------------------------------------------------------------------------------------------
@@ -396,7 +398,7 @@ async def fly(cfg: MissionFile, options: FlightOptions | None = None) -> FlightR
     wall0 = time.perf_counter()
     t0_ns = clock.now_ns()
     say = opt.on_line or (lambda _line: None)
-    interrupts = _Interrupts(cfg, say)
+    interrupts = FlightInterrupts(cfg, say)
     if opt.handle_signals:
         interrupts.install()
     try:
@@ -413,7 +415,7 @@ async def fly(cfg: MissionFile, options: FlightOptions | None = None) -> FlightR
 
 
 async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
-               say: Callable[[str], None], interrupts: _Interrupts) -> FlightResult:
+               say: Callable[[str], None], interrupts: FlightInterrupts) -> FlightResult:
     virtual = clock.virtual
     wall0 = time.perf_counter()
     t0_ns = clock.now_ns()
@@ -494,7 +496,8 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         if refused:  # nothing armed; what was set already is restored below
             result.exit_code, result.error = EXIT_PREFLIGHT, refused
             return result
-        recorder, hooks = mcap_record.flight_recorder(cfg, record, asm, virtual, opt.hooks)
+        recorder, hooks = mcap_record.flight_recorder(
+            cfg, record, asm, virtual, fault_injection.with_hooks(asm.faults, opt.hooks))
         hooks = live.attach(sink, hooks, {c: cam.model for c, cam in asm.cameras.items()},
                             asm.clock.now_ns())
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
@@ -521,61 +524,6 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         result.live = live.stop(sink)
         result.wall_s = time.perf_counter() - wall0
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9
-
-
-class _Interrupts:
-    """SIGINT / SIGTERM during a flight: the first asks the mission for its safe stop
-    (``safety.on_interrupt``, bounded by ``safety.interrupt_timeout_s``), or, before the
-    mission runs, cancels the flight (nothing is armed yet); a second exits at once."""
-
-    def __init__(self, cfg: MissionFile, say: Callable[[str], None]) -> None:
-        self.cfg, self.say = cfg, say
-        self.count = 0
-        self.mission: Any = None
-        self.mission_task: asyncio.Task[Any] | None = None
-        self.flight_task = asyncio.current_task()
-        self._loop = asyncio.get_running_loop()
-        self._installed: list[int] = []
-        self._timer: asyncio.TimerHandle | None = None
-
-    def install(self) -> None:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            try:
-                self._loop.add_signal_handler(sig, self._on_signal, int(sig))
-                self._installed.append(int(sig))
-            except (NotImplementedError, RuntimeError):  # not the main thread
-                pass
-
-    def remove(self) -> None:
-        for signum in self._installed:
-            self._loop.remove_signal_handler(signum)
-        self._installed = []
-        if self._timer is not None:
-            self._timer.cancel()
-
-    def _on_signal(self, signum: int) -> None:
-        self.count += 1
-        name = signal.Signals(signum).name
-        if self.count > 1:
-            sys.stderr.write(f"{name} again: exiting at once (the autopilot keeps its last "
-                             "mode)\n")
-            sys.stderr.flush()
-            os._exit(EXIT_INTERRUPTED)
-        if self.mission is None or self.mission_task is None:
-            self.say(f"{name}: stopping before the flight (nothing armed)")
-            if self.flight_task is not None:
-                self.flight_task.cancel()
-            return
-        action = self.cfg.safety.on_interrupt
-        self.say(f"{name}: safe stop ({action}) in progress; {name} again exits at once")
-        self.mission.interrupt(f"interrupted by {name}", action)
-        self._timer = self._loop.call_later(self.cfg.safety.interrupt_timeout_s, self._too_slow)
-
-    def _too_slow(self) -> None:
-        if self.mission_task is not None and not self.mission_task.done():
-            self.say(f"the safe stop did not finish within "
-                     f"{self.cfg.safety.interrupt_timeout_s:g} s: stopping the mission")
-            self.mission_task.cancel()
 
 
 def _one_line(exc: BaseException) -> str:

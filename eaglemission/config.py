@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from eaglemission import registry
 from eaglemission.config_errors import format_validation_error
 from eaglemission.errors import ConfigError, PluginError
+from eaglemission.faults_config import FaultsSection
 from eaglemission.geometry import CameraModel, CameraMount
 
 DEFAULT_CONFIG = "sitl_synthetic.yaml"
@@ -301,6 +302,8 @@ class MissionFile(StrictModel):
     world: PluginSection | None = None
     """The simulated world the fake drivers share (ground truth; ``eaglemission plugins``
     lists the ``worlds``); ``null`` for flights with nothing simulated."""
+    faults: FaultsSection | None = None
+    """Faults injected during the flight (docs/faults.md); ``null``: none."""
 
 
 # ---------------------------------------------------------------------------------------------

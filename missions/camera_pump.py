@@ -29,6 +29,24 @@ QueuedFrame = tuple[Frame, float, VehicleState | None]
 """(frame, host wall time of its mid-exposure, vehicle state at that time)."""
 
 COUNTS = ("grabbed", "processed", "skipped", "dropped")
+MAX_FRAME_SKEW_S = 1.0
+"""A frame stamped further than this from the mission clock is refused (a camera clock jump)."""
+
+
+def frame_problem(frame: Frame, width_px: int, height_px: int, last_seq: int | None,
+                  now_ns: int) -> tuple[str, str] | None:
+    """(what, text) when a grabbed frame cannot be used: wrong size (a truncated transfer), a
+    sequence number not after the last one (a frozen driver re-delivering), a stamp far from
+    the clock (a jump of the camera's clock). None: usable."""
+    h, w = frame.image.shape[:2]
+    if (w, h) != (width_px, height_px):
+        return "frame_rejected", f"frame of {w}x{h} px, expected {width_px}x{height_px}"
+    if last_seq is not None and frame.seq <= last_seq:
+        return "frame_repeated", f"frame {frame.seq} again (last {last_seq})"
+    skew_s = (frame.timestamp_ns - now_ns) * 1e-9
+    if abs(skew_s) > MAX_FRAME_SKEW_S:
+        return "frame_stamp", f"frame stamped {skew_s:+.2f} s from the clock"
+    return None
 
 
 class FrameCounts:
@@ -92,6 +110,7 @@ class CameraPump:
         self.frames: asyncio.Queue[QueuedFrame] = asyncio.Queue(maxsize=4)
         self.counts = FrameCounts(list(cameras))
         self.last_frame_ns: dict[str, int] = {}
+        self.last_seq: dict[str, int] = {}
         self.needed_since_ns: dict[str, int] = {}
         self.stopping = False
 
@@ -131,7 +150,18 @@ class CameraPump:
                 return
             except (errors.CameraError, TimeoutError) as exc:
                 self.log.write("event", source=cam_id, text=f"grab failed: {exc}")
+                self.log.write("fault_detected", what="grab_failed", camera=cam_id,
+                               text=str(exc), response="no frame; camera watch running")
                 continue
+            problem = frame_problem(frame, cam.model.width_px, cam.model.height_px,
+                                    self.last_seq.get(cam_id), self.clock.now_ns())
+            if problem is not None:
+                self.counts.add(cam_id, "grabbed")
+                self.counts.add(cam_id, "dropped")
+                self.log.write("fault_detected", what=problem[0], camera=cam_id,
+                               text=problem[1], response="frame dropped")
+                continue
+            self.last_seq[cam_id] = frame.seq
             # wall-clock time of the frame's mid-exposure: arrival minus the frame's age then
             # (virtual time stands still while the camera renders: age 0)
             age_s = 0.0 if _is_virtual() else max(

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from eaglemission.missions.campaign_executors import Executor, make_executor
+from eaglemission.missions.campaign_faults import judge, with_drawn_fault
 from eaglemission.missions.campaign_resume import RunStore
 
 from eaglemission.assembly import build_world
@@ -47,11 +48,13 @@ def _one_run(job: tuple[int, dict[str, Any], str | None]) -> dict[str, Any]:
 
     cfg = MissionFile.model_validate(cfg_dict)
     log_path = None if out_dir is None else Path(out_dir) / f"run_{index:03d}.jsonl"
+    faulted = cfg.faults is not None and bool(cfg.faults.inject)
     try:
-        out = run_simulation(cfg, log_path=log_path, keep_log=False)
+        out = run_simulation(cfg, log_path=log_path, keep_log=faulted)
     except Exception as exc:  # a crashed run is a failure with its reason, not a lost campaign
         return {"run": index, "crashed": True, "success": False,
                 "explanation": f"crashed: {type(exc).__name__}: {exc}",
+                "fault": cfg.faults.inject[0].kind if faulted and cfg.faults else None,
                 "sim": cfg.world.params if cfg.world else None}
     ev = out.evaluation
     return {"run": index, "crashed": False, "success": ev.success,
@@ -61,7 +64,8 @@ def _one_run(job: tuple[int, dict[str, Any], str | None]) -> dict[str, Any]:
             "horizontal_error_m": ev.horizontal_error_m, "grasp_distance_m": ev.grasp_distance_m,
             "violations": [v.__dict__ for v in ev.violations], "explanation": ev.explanation,
             "speedup": out.speedup, "latency_p90_ms": out.result.latency_p90_ms,
-            "sim": cfg.world.params if cfg.world else None}
+            "sim": cfg.world.params if cfg.world else None,
+            **(judge(out) if faulted else {})}
 
 
 @dataclass
@@ -91,16 +95,20 @@ class CampaignSummary:
 def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                  out_dir: str | None = None, progress: bool = False,
                  executor: str | Executor = "local",
-                 address: str | None = None) -> CampaignSummary:
+                 address: str | None = None,
+                 faults: list[str] | None = None) -> CampaignSummary:
     """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
     :class:`~eaglemission.missions.campaign_executors.Executor`); with ``out_dir`` each finished
     run is stored there and a rerun flies only the missing ones
-    (:mod:`eaglemission.missions.campaign_resume`)."""
+    (:mod:`eaglemission.missions.campaign_resume`). ``faults``: fault kinds, one drawn per run
+    (:mod:`.campaign_faults`)."""
     base = load_config(config)
     rng = np.random.RandomState(seed)
     jobs = []
     for i in range(runs):
         cfg = randomise(base, np.random.RandomState(int(rng.randint(0, 2**31 - 1))))
+        if faults:
+            cfg = with_drawn_fault(cfg, i, faults, seed)
         jobs.append((i, cfg.model_dump(mode="json"), out_dir))
     ex = make_executor(executor, workers=workers, address=address) \
         if isinstance(executor, str) else executor

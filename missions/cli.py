@@ -20,24 +20,36 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
                    help="local process pool, or Ray tasks (pip install 'eaglemission[ray]')")
     p.add_argument("--address", metavar="ADDR", help="Ray cluster to run on (--executor ray; "
                    "default: a local Ray with --workers CPUs)")
+    p.add_argument("--faults", metavar="KINDS", help="inject one fault per run: 'all' or "
+                   "kind1,kind2 (docs/faults.md); exit 1 when a run misses its expected outcome")
 
 
 def _campaign(args: argparse.Namespace) -> int:
     from eaglemission.missions.campaign import print_summary, run_campaign
     from eaglemission.missions.campaign_executors import CampaignExecutorError
+    from eaglemission.missions.campaign_faults import parse_kinds, print_fault_table
     from eaglemission.missions.campaign_resume import CampaignResumeError
 
     if args.runs < 1:
         print("error: --runs must be >= 1", file=sys.stderr)
         return 2
+    kinds = None
+    if args.faults is not None:
+        try:
+            kinds = parse_kinds(args.faults)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     try:
         summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
                                workers=args.workers, out_dir=args.out, progress=True,
-                               executor=args.executor, address=args.address)
+                               executor=args.executor, address=args.address, faults=kinds)
     except (CampaignExecutorError, CampaignResumeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print_summary(summary)
+    if kinds is not None:
+        return 1 if print_fault_table(summary.runs) else 0
     return 0
 
 

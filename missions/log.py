@@ -6,7 +6,9 @@ ISO 8601). Kinds: ``start``, ``config`` (the mission file, its SHA-256, package 
 ``state`` (state changes with reason), ``detection``, ``estimate``, ``filter``, ``setpoint``
 (requested and ``sent``: what the safety envelope passed on; ``latency_ms`` when it follows a
 fresh estimate), ``telemetry``, ``command``, ``event`` (vehicle / safety events: clamps and
-refusals; the recorder's problems), ``failsafe_params``, ``param_set``, ``end``.
+refusals; the recorder's problems), ``failsafe_params``, ``param_set``, ``end``,
+``fault_injected`` (the ``faults:`` section's injector: kind, where, size) and
+``fault_detected`` (the mission noticed something wrong: ``what``, ``text``, ``response``).
 A crash loses nothing already written: each line is complete and flushed before ``write``
 returns. Subscribers (:meth:`MissionLog.subscribe`: the MCAP recorder) get every record and
 its exact line: the JSON-lines file and the recording hold the same records.

@@ -153,6 +153,12 @@ class ApproachMission:
     def state(self) -> MissionState | None:
         return None if self.runner is None else self.runner.machine.state
 
+    def log_record(self, kind: str, **fields: Any) -> None:
+        """Write a record to this flight's mission log (the fault injector's
+        ``fault_injected``); nothing before the mission runs."""
+        if self.runner is not None:
+            self.runner.log.write(kind, **fields)
+
     def interrupt(self, reason: str, action: str) -> None:
         if self.runner is None:
             self._interrupt = (reason, action)

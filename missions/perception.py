@@ -119,6 +119,8 @@ class Measurement:
     fit_hint: FitHint | None
     plane: PlaneMeasurement | None
     perception_ms: float
+    anomaly: str | None = None
+    """What was wrong with the detector's output (a non-finite map): its detections ignored."""
 
     @property
     def fine_measurement(self) -> bool:
@@ -208,6 +210,14 @@ class Perception:
         p = self.p
         frame, model, state = req.frame, req.model, req.state
         result = tools.detector.detect(frame, _prior(frame.camera_id))
+        anomaly = None
+        if not bool(np.isfinite(result.saliency).all()):
+            anomaly = "nan_map"
+            result = replace(result, detections=())
+        elif any(not np.isfinite(d.corners_px).all() for d in result.detections):
+            anomaly = "nan_map"
+            result = replace(result, detections=tuple(
+                d for d in result.detections if np.isfinite(d.corners_px).all()))
         tracker = tools.tracker if tools.tracker is not None and tools.tracker.available \
             else None
         check_colour = tracker is not None and p.colour_check
@@ -240,7 +250,7 @@ class Perception:
         return Measurement(frame.camera_id, frame, state, req.estimator, det,
                            len(result.detections), tracked,
                            est, prov, refined, failure, hint, plane,
-                           (time.perf_counter() - t0) * 1e3)
+                           (time.perf_counter() - t0) * 1e3, anomaly)
 
     def _estimate(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
                   ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,

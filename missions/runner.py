@@ -26,6 +26,7 @@ import time
 from collections.abc import Awaitable, Callable, Mapping
 from typing import Any
 
+import numpy as np
 from eaglemission.missions import guidance as gd
 from eaglemission.missions.actuator import Actuator
 from eaglemission.missions.approach import (
@@ -67,6 +68,9 @@ from eaglemission.safety_geometry import inside_geofence
 from eaglemission.types import XYZ, FlightMode, Frame, VehicleState
 
 log = logging.getLogger(__name__)
+
+SLOW_PERCEPTION_MS = 150.0
+"""A frame whose perception took longer is logged as ``fault_detected`` ``slow_perception``."""
 
 
 class MissionRunner:
@@ -246,10 +250,9 @@ class MissionRunner:
             if item is None:
                 continue
             frame, wall, state = item
-            with self.pump.counts.dropped_on_error(frame.camera_id):
-                meas = await run_blocking(self.perception.perceive, self._request(frame, state),
-                                          self.tools[frame.camera_id])
-            self._apply(meas, wall)
+            meas = await perceive_logged(self, self._request(frame, state))
+            if meas is not None:
+                self._apply(meas, wall)
             self._wake_machine.set()
 
     def _request(self, frame: Frame, state: VehicleState | None) -> Request:
@@ -469,3 +472,29 @@ class MissionRunner:
                            frame_counts=result.frame_counts, wall_s=round(result.wall_s, 3),
                            completed=completed)
         return result
+
+
+async def perceive_logged(runner: MissionRunner, req: Request) -> Measurement | None:
+    """One frame through the runner's perception in a worker thread; what went wrong is
+    logged as ``fault_detected``: a plugin that raised (None: the frame is dropped, the flight
+    goes on), non-finite detector output, a slow frame (over ``SLOW_PERCEPTION_MS`` and 4x the
+    median of the last 50 frames: a loaded machine is not a fault)."""
+    cam = req.frame.camera_id
+    log, history_ms = runner.log, runner.perception_ms
+    try:
+        with runner.pump.counts.dropped_on_error(cam):
+            meas = await run_blocking(runner.perception.perceive, req, runner.tools[cam])
+    except Exception as exc:  # a failing plugin costs the frame, not the flight
+        log.write("fault_detected", what="perception_failed", camera=cam,
+                  text=f"{type(exc).__name__}: {exc}", response="frame dropped")
+        return None
+    if meas.anomaly is not None:
+        log.write("fault_detected", what=meas.anomaly, camera=cam,
+                  text="non-finite detector output", response="detections ignored")
+    recent = history_ms[-50:]
+    typical_ms = float(np.median(recent)) if recent else 0.0
+    if meas.perception_ms > max(SLOW_PERCEPTION_MS, 4.0 * typical_ms):
+        log.write("fault_detected", what="slow_perception", camera=cam,
+                  text=f"perception took {meas.perception_ms:.0f} ms",
+                  response="frame used; the filter predicts across the gap")
+    return meas

@@ -148,6 +148,10 @@ class TargetTracking:
                 vertical_reference(est.position_ned_m, cam_t, plane_m, p.vertical_reference,
                                    full_3d=meas.full_3d, full_3d_range_m=p.full_3d_range_m),
                 est.std_m, frame.timestamp_ns, allow_reset=pol.filter_may_reset)
+            if not accepted:
+                self.log.write("fault_detected", what="estimate_rejected", camera=cam_id,
+                               text="outside the target filter's gate",
+                               response="measurement ignored")
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
             fresh = accepted

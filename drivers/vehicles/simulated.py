@@ -15,7 +15,8 @@ what a MAVSDK client sees:
   cameras and the evaluator use) is logged at every internal step (:mod:`.truth_log`).
 
 Fault injection for tests and the sim world (:mod:`.simulated_faults`): ``inject_link_loss``,
-``inject_gps_loss``, ``set_battery_fraction``, ``pilot_take_control``, ``deny_next_command``.
+``inject_gps_loss``, ``set_battery_fraction``, ``pilot_take_control``, ``deny_next_command``,
+``inject_wind_gust``.
 """
 
 from __future__ import annotations
@@ -274,6 +275,10 @@ class SimulatedVehicle(SimulatedModel):
     def deny_next_command(self, name: str) -> None:
         """The next call of command ``name`` (e.g. ``"arm"``) is refused with COMMAND_DENIED."""
         self.faults.deny_next_command(name)
+
+    def inject_wind_gust(self, north_mps: float, east_mps: float, duration_s: float) -> None:
+        """Add a gust of (north, east) m/s to the world's wind for ``duration_s``."""
+        self.faults.inject_wind_gust(north_mps, east_mps, duration_s)
 
     async def _command(self, name: str, *params: Any) -> MulticopterDynamics:
         """Common prologue of a command: connected, link up (else TIMEOUT after the command

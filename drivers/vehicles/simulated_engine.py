@@ -268,7 +268,7 @@ class SimulatedModel:
         """After every internal step: the injected faults, the autopilot, the logs."""
         t = dyn.time_ns
         faults = self.faults
-        if faults.link_down:
+        if faults.busy:
             faults.on_step(t)
         ap = self._ap
         assert ap is not None  # built with the dynamics

@@ -1,5 +1,5 @@
-"""Fault injection of the simulated vehicle (tests and the sim world): link loss, GPS loss,
-battery level, a pilot taking control, a refused command."""
+"""Fault injection of the simulated vehicle (tests, the sim world and the ``faults:`` section):
+link loss, GPS loss, battery level, a pilot taking control, a refused command, a wind gust."""
 
 from __future__ import annotations
 
@@ -38,13 +38,27 @@ class SimulatedFaults:
         self._link_failsafe_done = False
         self._deny: set[str] = set()
         self.frozen_state: VehicleState | None = None  # what telemetry shows while the link is down
+        self._gust_until_ns: int | None = None
+        self._wind_before: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def busy(self) -> bool:
+        """A timed fault is running: :meth:`on_step` must run after every step."""
+        return self._link_down_until_ns is not None or self._gust_until_ns is not None
 
     @property
     def link_down(self) -> bool:
         return self._link_down_until_ns is not None
 
     def on_step(self, t: int) -> None:
-        """Before the autopilot's step: the link coming back, the data-link failsafe."""
+        """Before the autopilot's step: a gust ending, the link coming back, the data-link
+        failsafe."""
+        if self._gust_until_ns is not None and t >= self._gust_until_ns:
+            self._gust_until_ns = None
+            dyn = self._v._dyn
+            if dyn is not None:
+                dyn.wind_ne_mps = self._wind_before
+            self._v._event(EVENT_FAULT, "gust over", {"fault": "wind_gust", "ok": True})
         if self._link_down_until_ns is None:
             return
         v = self._v
@@ -134,3 +148,20 @@ class SimulatedFaults:
             raise ValueError(f"name: must be one of {sorted(COMMANDS)}, got {name!r}")
         with self._v._lock:
             self._deny.add(name)
+
+    def inject_wind_gust(self, north_mps: float, east_mps: float, duration_s: float) -> None:
+        _check_duration(duration_s, "inject_wind_gust")
+        if not (math.isfinite(north_mps) and math.isfinite(east_mps)):
+            raise ValueError(f"inject_wind_gust: speeds must be finite, got {north_mps}, "
+                             f"{east_mps}")
+        v = self._v
+        with v._lock:
+            dyn = v._sync()
+            if self._gust_until_ns is None:
+                self._wind_before = dyn.wind_ne_mps
+            base = self._wind_before
+            dyn.wind_ne_mps = (base[0] + north_mps, base[1] + east_mps)
+            self._gust_until_ns = dyn.time_ns + int(round(duration_s * 1e9))
+            v._event(EVENT_FAULT, f"wind gust ({north_mps:.1f}, {east_mps:.1f}) m/s for "
+                     f"{duration_s:g} s", {"fault": "wind_gust", "north_mps": north_mps,
+                                           "east_mps": east_mps, "duration_s": duration_s})

@@ -105,7 +105,7 @@ def test_failsafe_faults_end_as_configured(fast_config: MissionFile, tmp_path: P
     assert out.evaluation.ended_safe, out.evaluation.explanation
     assert out.evaluation.violations == []
     recs = _log_intact(log, out)
-    assert any(r["kind"] == "event" and r.get("source") == "fault" for r in recs)
+    assert any(r["kind"] == "fault_injected" for r in recs)
     if action in ("return", "land"):
         _assert_came_down(fast_config, out, recs, action)
 

@@ -1,0 +1,137 @@
+"""The ``faults:`` section flown: the assembly wraps the parts each fault lives in, and a task
+beside the mission injects each fault at its time and writes a ``fault_injected`` record.
+
+Camera faults go to the ``faulty`` camera plugin wrapped around the configured cameras;
+detector and estimator faults to :mod:`eaglemission.fault_wrappers`; vehicle and world faults to
+the vehicle's own injection methods (the ``simulated`` vehicle has them; a vehicle without one
+is refused with the fault's path). Nothing here touches the mission's code: the mission only
+sees what a real failure would show it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+from typing import Any
+
+from eaglemission import registry
+from eaglemission.context import WORLD
+from eaglemission.errors import ConfigError
+from eaglemission.fault_schedule import ActiveFaults
+from eaglemission.fault_wrappers import FaultyDetector, FaultyEstimator
+from eaglemission.faults_config import FaultSpec
+from eaglemission.faults_outcomes import OUTCOMES
+from eaglemission.interfaces import MissionHooks
+from eaglemission.types import FlightMode
+
+log = logging.getLogger(__name__)
+
+CAMERA_KINDS = frozenset({"camera_drop", "camera_freeze", "corrupted_frame", "truncated_frame",
+                          "exposure_jump", "camera_device_loss", "camera_clock_jump",
+                          "occlusion"})
+DETECTOR_KINDS = frozenset({"detector_exception", "nan_map", "slow_frame"})
+ESTIMATOR_KINDS = frozenset({"degenerate_corners", "pose_flip"})
+VEHICLE_METHODS = {"link_loss": "inject_link_loss", "gps_loss": "inject_gps_loss",
+                   "battery_drain": "set_battery_fraction", "pilot_mode": "pilot_take_control",
+                   "command_denied": "deny_next_command", "wind_gust": "inject_wind_gust"}
+POLL_S = 0.02
+
+
+class FaultInjector:
+    """Injects ``specs`` into the parts of one flight (see :func:`attach`)."""
+
+    def __init__(self, specs: list[FaultSpec], active: ActiveFaults, clock: Any, driver: Any,
+                 max_speed_mps: float) -> None:
+        self.specs, self.active, self.clock, self.driver = specs, active, clock, driver
+        self.max_speed_mps = max_speed_mps
+        self.injected: list[tuple[int, FaultSpec]] = []
+
+    def _vehicle(self, spec: FaultSpec) -> dict[str, Any]:
+        fn = getattr(self.driver, VEHICLE_METHODS[spec.kind])
+        if spec.kind in ("link_loss", "gps_loss"):
+            fn(spec.duration_s)
+            return {}
+        if spec.kind == "battery_drain":
+            fn(spec.value)
+            return {"fraction": spec.value}
+        if spec.kind == "pilot_mode":
+            fn(FlightMode.POSCTL)
+            return {"mode": FlightMode.POSCTL.value}
+        if spec.kind == "command_denied":
+            fn(spec.command)
+            return {"command": spec.command}
+        speed = spec.value * self.max_speed_mps  # wind_gust
+        rad = math.radians(spec.direction_deg)
+        fn(speed * math.cos(rad), speed * math.sin(rad), spec.duration_s)
+        return {"speed_mps": round(speed, 3), "direction_deg": spec.direction_deg}
+
+    def fire(self, spec: FaultSpec, now_ns: int) -> dict[str, Any]:
+        """Inject one fault now; returns the fields of its ``fault_injected`` record."""
+        self.active.activate(spec, now_ns)
+        extra = self._vehicle(spec) if spec.kind in VEHICLE_METHODS else {}
+        self.injected.append((now_ns, spec))
+        return {"fault": spec.kind, "where": OUTCOMES[spec.kind].where,
+                "duration_s": spec.duration_s, "size": spec.value, "camera": spec.camera,
+                "at_state": spec.at_state, **extra}
+
+    async def run(self, mission: Any) -> None:
+        """Beside the mission: fire each fault when its time or state comes."""
+        t0 = self.clock.now_ns()
+        due: dict[int, int] = {i: t0 + int(f.at_s * 1e9) for i, f in enumerate(self.specs)
+                               if f.at_s is not None}
+        pending = set(range(len(self.specs)))
+        write = getattr(mission, "log_record", None)
+        while pending:
+            now = self.clock.now_ns()
+            state = getattr(getattr(mission, "state", None), "value", None)
+            for i in sorted(pending):
+                f = self.specs[i]
+                if i not in due and f.at_state is not None and state == f.at_state:
+                    due[i] = now + int(f.delay_s * 1e9)
+                if i in due and now >= due[i]:
+                    pending.discard(i)
+                    fields = self.fire(f, now)
+                    if callable(write):
+                        write("fault_injected", **fields)
+                    else:
+                        log.warning("fault injected: %s", fields)
+            await self.clock.sleep(POLL_S)
+
+
+def attach(asm: Any) -> FaultInjector | None:
+    """Wrap ``asm``'s parts for its config's ``faults:`` section (None: no faults). Raises
+    :class:`ConfigError` naming the fault when its part cannot carry it."""
+    section = asm.config.faults
+    if section is None or not section.inject:
+        return None
+    specs = list(section.inject)
+    kinds = {f.kind for f in specs}
+    problems = [f"faults.inject.{i}.kind: the {asm.config.vehicle.type!r} vehicle cannot "
+                f"inject {f.kind} (no {VEHICLE_METHODS[f.kind]}(); the `simulated` vehicle "
+                "can)" for i, f in enumerate(specs)
+                if f.kind in VEHICLE_METHODS
+                and not callable(getattr(asm.driver, VEHICLE_METHODS[f.kind], None))]
+    if problems:
+        raise ConfigError(problems)
+    active = ActiveFaults()
+    if kinds & CAMERA_KINDS:
+        cls = registry.get("cameras", "faulty")
+        world = asm.shared.get(WORLD)
+        for cid in list(asm.cameras):
+            asm.cameras[cid] = cls(cls.Config(), inner=asm.cameras[cid], faults=active,
+                                   clock=asm.clock, world=world)
+    if kinds & DETECTOR_KINDS:
+        asm.detectors = {c: FaultyDetector(d, active, asm.clock) for c, d in asm.detectors.items()}
+    if kinds & ESTIMATOR_KINDS:  # both: the mission falls back on the coarse one
+        asm.fine = FaultyEstimator(asm.fine, active, asm.clock)
+        asm.coarse = FaultyEstimator(asm.coarse, active, asm.clock)
+    return FaultInjector(specs, active, asm.clock, asm.driver,
+                         asm.config.safety.max_horizontal_speed_mps)
+
+
+def with_hooks(injector: FaultInjector | None, hooks: MissionHooks) -> MissionHooks:
+    """``hooks`` plus the injector's task beside the mission."""
+    if injector is None:
+        return hooks
+    return replace(hooks, side_tasks=(*hooks.side_tasks, injector.run))
