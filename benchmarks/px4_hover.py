@@ -13,7 +13,7 @@ One flight: take off, offboard to ``--height-m`` above the ground, then two hold
 
 Judged on HIL_STATE_QUATERNION (simulator truth; height = truth altitude above the take-off
 point): horizontal wander about its own mean (RMS, max) and height error (mean, RMS, min), the
-time in ground contact. Every setpoint goes through the safety envelope (floor on the
+time in ground contact, and PX4's own tracking (estimate - setpoint, horizontal RMS). Every setpoint goes through the safety envelope (floor on the
 rangefinder). Needs PX4 with HIL_STATE_QUATERNION and DISTANCE_SENSOR (SIH has both); start a
 fresh PX4 for each run.
 """
@@ -47,6 +47,7 @@ async def _hold(safe: SafeVehicle, inner: MavsdkVehicle, mode: str, north_m: flo
     correction_m = 0.0
     horiz: list[tuple[float, float]] = []
     heights: list[float] = []
+    tracking: list[float] = []  # PX4's own: estimate - setpoint, horizontal
     while loop.time() < t_end:
         s = safe.state()
         if s.flight_mode != FlightMode.OFFBOARD:
@@ -64,6 +65,8 @@ async def _hold(safe: SafeVehicle, inner: MavsdkVehicle, mode: str, north_m: flo
                 (n, e, d), _q = pose
                 horiz.append((n, e))
                 heights.append(-d)
+                tracking.append(math.hypot(s.position_ned_m[0] - north_m,
+                                           s.position_ned_m[1] - east_m))
         await asyncio.sleep(SETPOINT_PERIOD_S)
     if len(heights) < 10:
         raise RuntimeError(f"{mode}: no ground truth (HIL_STATE_QUATERNION) during the hold")
@@ -73,6 +76,7 @@ async def _hold(safe: SafeVehicle, inner: MavsdkVehicle, mode: str, north_m: flo
     err = [h - height_m for h in heights]
     return {"horizontal_rms_m": math.sqrt(statistics.fmean(x * x for x in r)),
             "horizontal_max_m": max(r),
+            "estimate_tracking_rms_m": math.sqrt(statistics.fmean(x * x for x in tracking)),
             "height_error_mean_m": statistics.fmean(err),
             "height_error_rms_m": math.sqrt(statistics.fmean(x * x for x in err)),
             "height_min_m": min(heights),
@@ -110,9 +114,9 @@ async def main(args: argparse.Namespace) -> int:
     print(f"PX4 hover at {args.height_m:g} m above the ground, {args.hold_s:g} s per mode "
           "(truth: HIL_STATE_QUATERNION)")
     keys = list(next(iter(results.values())))
-    print(f"{'mode':<12}" + "".join(f"{k:>22}" for k in keys))
+    print(f"{'mode':<12}" + "".join(f"{k:>25}" for k in keys))
     for mode, r in results.items():
-        print(f"{mode:<12}" + "".join(f"{r[k]:>22.3f}" for k in keys))
+        print(f"{mode:<12}" + "".join(f"{r[k]:>25.3f}" for k in keys))
     return 0
 
 
