@@ -25,6 +25,7 @@ from typing import Any
 
 import pytest
 from eaglemission.drivers.vehicles import px4
+from eaglemission.drivers.vehicles.emulator_messages import Streams
 from eaglemission.drivers.vehicles.mavlink_emulator import (
     PX4_ONBOARD_RATES_HZ,
     EmulatorConfig,
@@ -33,7 +34,6 @@ from eaglemission.drivers.vehicles.mavlink_emulator import (
     parse_link,
     stream_rates_hz,
 )
-from eaglemission.drivers.vehicles.emulator_messages import Streams
 
 from eaglemission.errors import ConfigError
 from eaglemission.types import FlightMode, Setpoint, Waypoint
