@@ -14,7 +14,7 @@ FUZZ = settings(derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
 
 
-@settings(FUZZ, max_examples=40)
+@settings(FUZZ, max_examples=25)
 @given(st.randoms(use_true_random=False))
 def test_mutated_mavlink_streams_never_break_the_emulator(rand: random.Random) -> None:
     rig = EmulatorRig.new()
