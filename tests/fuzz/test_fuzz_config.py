@@ -40,7 +40,7 @@ def test_the_shipped_files_pass_except_the_replay_without_its_recording() -> Non
                    "sitl_synthetic.yaml": "valid"}
 
 
-@settings(FUZZ, max_examples=40)
+@settings(FUZZ, max_examples=25)
 @given(st.randoms(use_true_random=False))
 def test_mutated_valid_files_are_accepted_or_refused_with_path_problem(rand: random.Random) -> None:
     doc = mutate(rand.choice(DOCS), rand)
