@@ -16,7 +16,9 @@ Targets (see each module's docstring for its property):
 * ``--files N``: mutated MCAP recordings into ``log`` / ``log --recover`` and mutated JSON
   lines into their readers (fuzz_files.py);
 * ``--frames N``: arrays into the frame checks, frame sequences into every detector
-  (fuzz_frames.py).
+  (fuzz_frames.py);
+* ``--missions N``: whole simulated missions under bursts of hostile telemetry
+  (fuzz_mission.py; a few seconds each).
 
 Target ``t`` uses ``random.Random(f"{seed}:{t}")``: a run is reproduced by its seed and counts.
 The registry's entry-point scan (~20 ms a call, several per validation) is cached for the run
@@ -161,9 +163,20 @@ def run_frames(n: int, rng: random.Random, tmp: Path) -> Tally:
     return tally
 
 
+def run_missions(n: int, rng: random.Random, tmp: Path) -> Tally:
+    from fuzz_mission import check_mission
+
+    from eaglemission.config import load_config
+
+    cfg = load_config(None)
+    tally = Tally()
+    _loop(tally, n, lambda i: check_mission(cfg, rng.randrange(2**32)).split(":")[0])
+    return tally
+
+
 TARGETS: dict[str, Callable[[int, random.Random, Path], Tally]] = {
     "configs": run_configs, "telemetry": run_telemetry, "mavlink": run_mavlink,
-    "files": run_files, "frames": run_frames}
+    "files": run_files, "frames": run_frames, "missions": run_missions}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -383,6 +383,8 @@ class MissionRunner:
             if not self.actuator.offboard or not pol.offboard:
                 continue
             vs = self.vehicle.state()
+            if not all(math.isfinite(v) for v in (*vs.position_ned_m, *vs.attitude_q)):
+                continue  # no pose to steer from (the autopilot keeps the last setpoint)
             filt = self.track.filter.state(now)
             step = self.guidance.step(pol.goal.name, vs.position_ned_m, vs.yaw_deg,
                                       vs.attitude_q, None if filt is None else filt.position_ned_m,
