@@ -5,16 +5,21 @@ complete chunk) and :func:`summarize` (``eaglemission log FILE.mcap``)."""
 from __future__ import annotations
 
 import json
+import os
+import struct
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, BinaryIO, cast
 
 from mcap.exceptions import EndOfFile, McapError
 from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import Writer
+
+MAX_CHUNK_BYTES = 1 << 30
+"""A chunk declaring more uncompressed bytes than this is corrupt (the recorder writes 4 MiB)."""
 
 
 @dataclass
@@ -31,13 +36,28 @@ class Scan:
     topics: Counter[str] = field(default_factory=Counter)
 
 
+class _Bounded:
+    """A file whose ``read(n)`` never asks for more than what is left of it (a corrupt
+    length field inside a record must not allocate gigabytes)."""
+
+    def __init__(self, fh: BinaryIO, size: int) -> None:
+        self._fh, self._size = fh, size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(0, self._size - self._fh.tell())
+        return self._fh.read(left if n < 0 else min(n, left))
+
+
 def scan(path: str | Path, st: Scan) -> Iterator[Any]:
     """Every Schema, Channel, Message and Metadata record of the file, in file order, up to
     its footer or its last complete chunk (``st`` counts them and says where it stopped); a
     chunk is read only whole (its CRC checked), so a truncated one is left out entirely."""
     channels: dict[int, str] = {}
     with open(path, "rb") as fh:
-        it = iter(StreamReader(fh, emit_chunks=True).records)
+        # no record is longer than the file: a corrupt length must not allocate gigabytes
+        size = max(1, os.fstat(fh.fileno()).st_size)
+        it = iter(StreamReader(cast(IO[bytes], _Bounded(fh, size)), emit_chunks=True,
+                               record_size_limit=size).records)
         while True:
             try:
                 rec = next(it)
@@ -46,10 +66,15 @@ def scan(path: str | Path, st: Scan) -> Iterator[Any]:
             except EndOfFile:
                 st.stopped = "the file ends inside a record: cut short"
                 break
-            except (McapError, EOFError, ValueError, OSError) as exc:  # corrupt
+            except (McapError, EOFError, ValueError, OSError, struct.error,
+                    OverflowError) as exc:  # corrupt (struct.error: a field cut short)
                 st.stopped = f"{type(exc).__name__}: {exc}".strip()
                 break
             if isinstance(rec, Chunk):
+                if rec.uncompressed_size > MAX_CHUNK_BYTES:
+                    st.stopped = (f"corrupt chunk: declares {rec.uncompressed_size} bytes "
+                                  "uncompressed")
+                    break
                 try:
                     inner = breakup_chunk(rec, validate_crc=True)
                 except Exception as exc:  # noqa: BLE001 - a corrupt chunk ends the readable part

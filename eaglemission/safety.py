@@ -54,6 +54,10 @@ from eaglemission.types import (
 )
 
 EVENT_SAFETY = "safety"
+MAX_SAMPLES = 10_000
+"""Most samples along one path check (0.25 m apart up to 2.5 km, sparser beyond)."""
+MAX_POSITION_M = 1e7
+"""A reported position farther from home than this (10,000 km) is telemetry gone wrong."""
 
 _Vec2 = tuple[float, float]
 
@@ -84,6 +88,11 @@ def distance_to_polygon_edge(p: _Vec2, polygon: Sequence[Sequence[float]]) -> tu
     return best
 
 
+def position_ok(p: Sequence[float]) -> bool:
+    """A position estimate the envelope can step from: finite, within MAX_POSITION_M of home."""
+    return all(math.isfinite(v) and abs(v) <= MAX_POSITION_M for v in p)
+
+
 def braking_distance_m(speed_mps: float, decel_mps2: float) -> float:
     """``v^2 / (2 a)``: how far a vehicle at ``speed_mps`` travels while braking."""
     return speed_mps * speed_mps / (2.0 * decel_mps2)
@@ -111,6 +120,10 @@ class Envelope:
             cn = sum(v[0] for v in self._poly) / len(self._poly)
             ce = sum(v[1] for v in self._poly) / len(self._poly)
             self._poly_centre = (cn, ce)
+            if not (self.safe_h(0.0, 0.0) or self.safe_h(cn, ce)):  # nearest_safe's anchors
+                raise ValueError(f"geofence.polygon_ned_m: neither home nor the polygon's "
+                                 f"centroid lies {self.margin_m:.2f} m inside it: enlarge the "
+                                 "fence or reduce the margin")
 
     # -- membership ----------------------------------------------------------------------------
     def inside_fence(self, north_m: float, east_m: float) -> bool:
@@ -144,7 +157,12 @@ class Envelope:
         L = math.hypot(b[0] - a[0], b[1] - a[1])
         if L == 0:
             return a
-        n = max(1, int(math.ceil(L / step_m)))
+        if not math.isfinite(L):
+            return None
+        # at most MAX_SAMPLES samples (a position kilometres off, from telemetry that jumped,
+        # must not stall the setpoint loop); the bisection below still finds the crossing
+        steps = L / step_m
+        n = MAX_SAMPLES if not steps < MAX_SAMPLES else max(1, math.ceil(steps))
         last = a
         for k in range(1, n + 1):
             s = k / n
@@ -152,7 +170,7 @@ class Envelope:
             if not self.safe_h(*q):
                 # refine between last and q
                 lo, hi = (k - 1) / n, s
-                for _ in range(12):
+                for _ in range(12 if n < MAX_SAMPLES else 40):
                     mid = 0.5 * (lo + hi)
                     m = (a[0] + mid * (b[0] - a[0]), a[1] + mid * (b[1] - a[1]))
                     if self.safe_h(*m):
@@ -332,10 +350,20 @@ class SafeVehicle:
         if abs(offset) > self.safety.rangefinder_max_correction_m:
             self._intervene("altitude_reference", f"range {d:.2f} m disagrees with the altitude "
                             f"estimate {-s.position_ned_m[2]:.2f} m by {offset:+.2f} m: the band "
-                            "uses the estimate", {"requested": round(d, 2), "result": None},
+                            "uses the estimate", {"requested": None, "range_m": round(d, 2)},
                             refuse=False)
             return 0.0
         return offset
+
+    def _position(self, origin: str, s: VehicleState, params: Any) -> tuple[float, float, float]:
+        """The vehicle's reported position; :class:`SafetyViolation` ``NO_POSITION`` when it is
+        not finite (a path or a step cannot be checked against an unknown start)."""
+        p = s.position_ned_m
+        if not position_ok(p):
+            raise SafetyViolation("NO_POSITION", origin, params,
+                                  f"the vehicle reports a non-finite or absurd position {p}: "
+                                  "wait for a valid position estimate")
+        return p
 
     def _check_point(self, origin: str, north_m: float, east_m: float, altitude_m: float,
                      start: tuple[float, float] | None, params: Any, *,
@@ -432,6 +460,7 @@ class SafeVehicle:
                             {"requested": altitude_m, "result": alt}, refuse=self._refuse,
                             params=(altitude_m,))
         s = self._inner.state()
+        self._position("takeoff()", s, (altitude_m,))
         if not env.safe_h(s.position_ned_m[0], s.position_ned_m[1]):
             self._intervene("takeoff()", "the vehicle is outside the geofence (or its margin)",
                             {"position_ned_m": s.position_ned_m}, refuse=True, params=(altitude_m,))
@@ -441,8 +470,8 @@ class SafeVehicle:
     async def goto(self, target: GeoPoint, yaw_deg: float) -> None:
         home = self._home("goto()")
         n, e, d = geodetic_to_ned(home, target)
-        s = self._inner.state()
-        start = (s.position_ned_m[0], s.position_ned_m[1])
+        p = self._position("goto()", self._inner.state(), (target, yaw_deg))
+        start = (p[0], p[1])
         cn, ce, calt = self._check_point("goto()", n, e, -d, start, (target, yaw_deg))
         if (cn, ce, calt) != (n, e, -d):
             target = ned_to_geodetic(home, cn, ce, -calt)
@@ -451,8 +480,8 @@ class SafeVehicle:
 
     async def upload_mission(self, waypoints: Sequence[Waypoint]) -> None:
         out: list[Waypoint] = []
-        s = self._inner.state()
-        prev: tuple[float, float] | None = (s.position_ned_m[0], s.position_ned_m[1])
+        p = self._position("upload_mission()", self._inner.state(), None)
+        prev: tuple[float, float] | None = (p[0], p[1])
         vmax = self.safety.max_horizontal_speed_mps
         for i, w in enumerate(waypoints):
             origin = f"upload_mission() waypoint {i}"
@@ -474,9 +503,13 @@ class SafeVehicle:
 
     async def start_offboard(self, initial: Setpoint) -> None:
         s = self._inner.state()
-        self._carrot = s.position_ned_m
+        self._carrot = self._position("start_offboard()", s, (initial,))
         self._carrot_ns = self.clock.now_ns()
-        sp = self._step("start_offboard()", initial, s, first=True)
+        try:
+            sp = self._step("start_offboard()", initial, s, first=True)
+        except SafetyViolation:
+            self._carrot = None  # nothing was sent: there is no step to hold
+            raise
         await self._inner.start_offboard(sp)
 
     async def set_setpoint(self, setpoint: Setpoint) -> None:
@@ -509,8 +542,22 @@ class SafeVehicle:
             self._clamp_cache = (req, (n, e, alt), text)
         goal = (n, e, -alt)
         now = self.clock.now_ns()
+        p = s.position_ned_m
+        if not position_ok(p):
+            # no position to step from: hold the last step sent (inside the envelope)
+            if self._carrot is None:
+                self._position(origin, s, (requested,))
+            self._intervene(origin, f"the vehicle reports a non-finite or absurd position {p}: holding "
+                            "the last setpoint", {"requested": req, "position_ned_m": p},
+                            refuse=False)
+            self._carrot_ns = now
+            c = self._carrot
+            assert c is not None
+            sp = Setpoint(c[0], c[1], c[2], requested.yaw_deg)
+            self.last_sent = sp
+            return sp
         if self._carrot is None:  # offboard started without us (or after a mode change)
-            self._carrot = s.position_ned_m
+            self._carrot = p
             self._carrot_ns = now
         dt = 0.0 if first else min(self.max_step_dt_s, max(0.0, (now - self._carrot_ns) * 1e-9))
         self._carrot_ns = now
@@ -525,7 +572,6 @@ class SafeVehicle:
         dd = goal[2] - c[2]
         nd = c[2] + max(-vv * dt, min(vv * dt, dd))
         # 2. never lead the vehicle by more than lead_s of travel
-        p = s.position_ned_m
         ln, le = nn - p[0], ne - p[1]
         lh = math.hypot(ln, le)
         max_lead_h = vh * self.lead_s
@@ -533,6 +579,11 @@ class SafeVehicle:
             nn, ne = p[0] + ln * max_lead_h / lh, p[1] + le * max_lead_h / lh
         max_lead_v = vv * self.lead_s
         nd = max(p[2] - max_lead_v, min(p[2] + max_lead_v, nd))
+        # ... and never further outside the band than the vehicle itself (a step left from
+        # before a jump in the reported altitude must not lead out of the band; the band in
+        # estimated altitude, i.e. shifted by the rangefinder's ground offset)
+        lo_m, hi_m = env.min_alt_m - off, env.max_alt_m - off
+        nd = max(-max(hi_m, -p[2]), min(-min(lo_m, -p[2]), nd))
         # 3. the step itself must stay in the envelope (non-convex fences, vehicle outside);
         #    vertically it lies between the vehicle / previous step and a goal inside the band
         if not env.safe_h(nn, ne):

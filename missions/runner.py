@@ -73,6 +73,12 @@ SLOW_PERCEPTION_MS = 150.0
 """A frame whose perception took longer is logged as ``fault_detected`` ``slow_perception``."""
 
 
+def pose_finite(vs: VehicleState) -> bool:
+    """The state has a finite position and attitude to steer from (telemetry gone wrong has
+    not: the setpoint loop then skips the tick and the autopilot keeps the last setpoint)."""
+    return all(math.isfinite(v) for v in (*vs.position_ned_m, *vs.attitude_q))
+
+
 class MissionRunner:
     """Runs one approach mission on already-built parts.
 
@@ -383,9 +389,9 @@ class MissionRunner:
             dt = max(0.0, (now - last_ns) * 1e-9)
             last_ns = now
             pol = self.policy
-            if not self.actuator.offboard or not pol.offboard:
-                continue
             vs = self.vehicle.state()
+            if not self.actuator.offboard or not pol.offboard or not pose_finite(vs):
+                continue
             filt = self.track.filter.state(now)
             step = self.guidance.step(pol.goal.name, vs.position_ned_m, vs.yaw_deg,
                                       vs.attitude_q, None if filt is None else filt.position_ned_m,

@@ -172,7 +172,11 @@ class TargetTracking:
 
     def _check_grasp(self, vs: VehicleState, target_ned_m: XYZ, *, counting: bool) -> None:
         """The mission's own tool-point errors; with ``counting``, the grasp-stability count
-        (it stays at 0 at the standoff)."""
+        (it stays at 0 at the standoff). A state without a finite pose (telemetry gone
+        wrong) is skipped: it neither counts nor breaks the count."""
+        if not all(math.isfinite(v) for v in (*vs.position_ned_m, *vs.attitude_q,
+                                              *vs.velocity_ned_mps)):
+            return
         tool = gd.tool_point_ned(vs.position_ned_m, vs.attitude_q, self.cfg.tool_point_m)
         h_err, dist = gd.tool_errors(tool, target_ned_m)
         speed = math.sqrt(sum(v * v for v in vs.velocity_ned_mps))
@@ -192,7 +196,8 @@ class TargetTracking:
                 or not pol.rangefinder):
             return
         cos_tilt = down_axis_cos_tilt(vs.attitude_q)
-        if not math.isfinite(d) or cos_tilt < 0.5 or d == self._last_range_m:
+        if (not math.isfinite(d) or not math.isfinite(vs.position_ned_m[2])
+                or not cos_tilt >= 0.5 or d == self._last_range_m):  # NaN attitude: not >= 0.5
             return  # a repeated value is the same sample (telemetry outpaces the sensor)
         self._last_range_m = d
         self.plane.update(vs.position_ned_m[2] + d * cos_tilt, self.p.rangefinder_std_m,

@@ -99,6 +99,9 @@ def to_bgr(data: NDArray[Any], width: int, height: int, pixel_format: str) -> ND
     elif not fmt.startswith(("Mono", "Bayer")):
         raise FrameError("UNSUPPORTED_FORMAT", "to_bgr", fmt,
                          "set PixelFormat to a Mono, Bayer, RGB or BGR format")
+    if width <= 0 or height <= 0:
+        raise FrameError("WRONG_SIZE", "to_bgr", fmt,
+                         f"the buffer says {width}x{height} px: an empty or corrupted frame")
     arr = np.asarray(data)
     need = width * height * channels
     if arr.size != need:

@@ -19,7 +19,7 @@ from typing import Any
 
 from eaglemission.drivers.cameras.world import GroundTruth, SyntheticWorld
 from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig, world_config
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.config import MissionFile, TargetConfig
@@ -159,7 +159,11 @@ class SyntheticCamera:
     @classmethod
     def config_problems(cls, mission: MissionFile, path: str) -> list[str]:
         """``validate``: a synthetic camera needs the world it renders."""
-        if world_config(mission) is None:
+        try:
+            world = world_config(mission)
+        except ValidationError:
+            return []  # the world's own params check names what is wrong there
+        if world is None:
             return [f"{path}.type: a synthetic camera renders the simulated world: add a "
                     "`world:` section (type: synthetic), or use a real camera (genicam) or "
                     "replay"]

@@ -216,14 +216,19 @@ class CommandHandlers:
             return
         hl = e.home_local
         mask = msg.type_mask
-        yaw = None if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else math.degrees(msg.yaw)
+        yaw = (None if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE or not math.isfinite(msg.yaw)
+               else math.degrees(msg.yaw))
         ap = e.autopilot
         if not mask & (M.POSITION_TARGET_TYPEMASK_X_IGNORE | M.POSITION_TARGET_TYPEMASK_Y_IGNORE
                        | M.POSITION_TARGET_TYPEMASK_Z_IGNORE):
+            if not all(math.isfinite(v) for v in (msg.x, msg.y, msg.z)):
+                return  # PX4 rejects a non-finite position setpoint (it does not feed the signal)
             ap.set_setpoint(Setpoint(msg.x - hl[0], msg.y - hl[1], msg.z - hl[2],
                                      e.dyn.yaw_setpoint_deg if yaw is None else yaw))
         elif not mask & (M.POSITION_TARGET_TYPEMASK_VX_IGNORE | M.POSITION_TARGET_TYPEMASK_VY_IGNORE
                          | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE):
+            if not all(math.isfinite(v) for v in (msg.vx, msg.vy, msg.vz)):
+                return
             ap.set_velocity_setpoint((msg.vx, msg.vy, msg.vz), yaw)
         else:
             return

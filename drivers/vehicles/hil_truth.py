@@ -75,7 +75,7 @@ class HilTruth:
         """A received message (MAVSDK's thread), stamped on receipt."""
         try:
             geo, vel, q = parse_hil_state(json.loads(fields_json))
-        except (ValueError, json.JSONDecodeError):
+        except (ValueError, RecursionError):  # JSONDecodeError is a ValueError
             self.errors += 1
             return
         self.add(stamp_ns, geo, vel, q)
