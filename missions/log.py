@@ -8,7 +8,9 @@ ISO 8601). Kinds: ``start``, ``config`` (the mission file, its SHA-256, package 
 fresh estimate), ``telemetry``, ``command``, ``event`` (vehicle / safety events: clamps and
 refusals; the recorder's problems), ``failsafe_params``, ``param_set``, ``end``,
 ``fault_injected`` (the ``faults:`` section's injector: kind, where, size) and
-``fault_detected`` (the mission noticed something wrong: ``what``, ``text``, ``response``).
+``fault_detected`` (the mission noticed something wrong: ``what``, ``text``, ``response``; a slow
+frame is judged on host wall time and carries ``wall_clock: true``: not part of a seed's
+deterministic log).
 A crash loses nothing already written: each line is complete and flushed before ``write``
 returns. Subscribers (:meth:`MissionLog.subscribe`: the MCAP recorder) get every record and
 its exact line: the JSON-lines file and the recording hold the same records.
