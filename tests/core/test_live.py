@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import socket
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -250,6 +251,12 @@ def test_a_stalled_client_never_blocks_the_sink_nor_the_other_clients() -> None:
     for i in range(n):
         sink.record({"kind": "event", "t_ns": i}, json.dumps({"kind": "event", "i": i,
                                                               "pad": pad}))
+    deadline = time.monotonic() + 60.0  # the reading client follows at its own pace
+    while time.monotonic() < deadline:
+        got_now = reader.received.messages.get("/log/event", [])
+        if got_now and json.loads(got_now[-1][1])["i"] == n - 1:
+            break
+        threading.Event().wait(0.05)
     stats = sink.close(timeout_s=2.0)  # the server's stop() would wait for the stalled one
     stalled: FoxgloveClient = out["stalled"]
     stalled.close()
