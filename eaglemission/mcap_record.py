@@ -271,14 +271,20 @@ class McapRecorder:
         self._log_write = write
         self._report()
 
-    def record(self, record: Mapping[str, Any], line: str) -> None:
+    def _admit(self) -> bool:
+        """Room for one more record (counted as pending), else counted as dropped."""
         if self._closed:
-            return
+            return False
         with self._lock:
             if self._records_pending >= self._max_records:
                 self.stats["records_dropped"] += 1
-                return
+                return False
             self._records_pending += 1
+        return True
+
+    def record(self, record: Mapping[str, Any], line: str) -> None:
+        if not self._admit():
+            return
         if record.get("kind") == "end" and "frame_counts" in record:
             with self._lock:
                 self.stats["cameras"] = record["frame_counts"]
@@ -288,13 +294,8 @@ class McapRecorder:
 
     def message(self, topic: str, t_ns: int, payload: Mapping[str, Any]) -> None:
         """Any JSON message on ``topic`` at mission time ``t_ns`` (the vehicle tap's)."""
-        if self._closed:
+        if not self._admit():
             return
-        with self._lock:
-            if self._records_pending >= self._max_records:
-                self.stats["records_dropped"] += 1
-                return
-            self._records_pending += 1
         self._queue.put(("json", topic, int(t_ns), time.time_ns(), payload))
 
     def frame(self, frame: Frame) -> None:

@@ -35,13 +35,15 @@ TOL_ALTITUDE_M = 0.0
 TOL_SPEED_MPS = 0.1
 
 
-async def _flying(safety: SafetyConfig, *, seed: int = 3) -> tuple[SafeVehicle, SimulatedVehicle, ManualClock]:
+async def _flying(safety: SafetyConfig, *, seed: int = 3, vehicle_cfg: object = None,
+                  altitude_m: float = 5.0) -> tuple[SafeVehicle, SimulatedVehicle, ManualClock]:
     clock = ManualClock()
-    sim = SimulatedVehicle(clock=clock, simulation=SyntheticWorldConfig(seed=seed))
+    sim = SimulatedVehicle(vehicle_cfg, clock=clock,  # type: ignore[arg-type]
+                           simulation=SyntheticWorldConfig(seed=seed))
     safe = SafeVehicle(sim, safety, clock=clock, logger=logging.getLogger("test.safety"))
     await safe.connect()
     await safe.arm()
-    await safe.takeoff(5.0)
+    await safe.takeoff(altitude_m)
     for _ in range(300):
         await clock.sleep(0.1)
         if safe.state().flight_mode == FlightMode.HOLD:
@@ -257,17 +259,8 @@ async def _low_hover(reference: str, seed: int) -> tuple[float, float, float]:
         seed=seed, rangefinder={"enabled": True, "noise_std_m": 0.01},  # type: ignore[arg-type]
         dynamics={"estimate_vertical_std_m": 0.35, "estimate_max_error_m": 0.45,  # type: ignore[arg-type]
                   "estimate_correlation_time_s": 600.0})
-    clock = ManualClock()
-    sim = SimulatedVehicle(cfg, clock=clock, simulation=SyntheticWorldConfig(seed=seed))
-    safe = SafeVehicle(sim, _safety(altitude_reference=reference), clock=clock,
-                       logger=logging.getLogger("test.safety"))
-    await safe.connect()
-    await safe.arm()
-    await safe.takeoff(3.0)
-    for _ in range(300):
-        await clock.sleep(0.1)
-        if safe.state().flight_mode == FlightMode.HOLD:
-            break
+    safe, sim, clock = await _flying(_safety(altitude_reference=reference), seed=seed,
+                                     vehicle_cfg=cfg, altitude_m=3.0)
     s = safe.state()
     await safe.start_offboard(Setpoint(*s.position_ned_m, s.yaw_deg))
     for _ in range(300):  # 15 s at 20 Hz

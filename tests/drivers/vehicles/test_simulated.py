@@ -18,7 +18,7 @@ from eaglemission import registry
 from eaglemission.clock import LoopClock, ManualClock, run_virtual
 from eaglemission.errors import ModeChangedExternally, TimeoutError_, VehicleError
 from eaglemission.geometry import R_to_euler, quat_to_R
-from eaglemission.types import FlightMode, Setpoint, Waypoint
+from eaglemission.types import FlightMode, Setpoint, VehicleState, Waypoint
 
 try:
     from contract import VehicleContract
@@ -34,6 +34,18 @@ def make(clock: ManualClock | None = None, **cfg: object) -> tuple[SimulatedVehi
     v = SimulatedVehicle(SimulatedVehicleConfig(**cfg), clock=clock,  # type: ignore[arg-type]
                          simulation=sim_cfg)  # type: ignore[arg-type]
     return v, clock
+
+
+async def offboard_hover(v: SimulatedVehicle, clock: ManualClock) -> tuple[VehicleState, Setpoint]:
+    """Airborne, then 1 s of offboard setpoints at the current position: (state, setpoint)."""
+    await airborne(v, clock)
+    s = v.state()
+    sp = Setpoint(*s.position_ned_m, s.yaw_deg)
+    await v.start_offboard(sp)
+    for _ in range(20):
+        await v.set_setpoint(sp)
+        await clock.sleep(0.05)
+    return s, sp
 
 
 async def airborne(v: SimulatedVehicle, clock: ManualClock, alt: float = 5.0) -> None:
@@ -149,13 +161,7 @@ async def test_offboard_loss_px4_default_position_mode_descends_and_disarms() ->
     # Recorded PX4 v1.16 (scenario b): failsafe 1.06 s after the last setpoint -> POSCTL,
     # descent at ~0.6-0.7 m/s without RC, "Disarmed by landing" ~11 s after the last setpoint.
     v, clock = make(offboard_loss_timeout_s=1.0, offboard_loss_action="position_no_rc")
-    await airborne(v, clock)
-    s = v.state()
-    sp = Setpoint(*s.position_ned_m, s.yaw_deg)
-    await v.start_offboard(sp)
-    for _ in range(20):
-        await v.set_setpoint(sp)
-        await clock.sleep(0.05)
+    s, sp = await offboard_hover(v, clock)
     t_last = clock.now_ns()
     await wait_until(lambda: v.state().flight_mode == FlightMode.POSCTL, 3.0, clock=clock)
     dt_failsafe = (clock.now_ns() - t_last) / 1e9
@@ -676,13 +682,7 @@ async def test_short_link_loss_in_offboard_fails_over_back_and_is_reported() -> 
     the mission's own link-loss timeout, so the ``failover`` event is all that tells."""
     v, clock = make(link_loss_action="return", link_loss_timeout_s=3.0,
                     offboard_loss_action="position_no_rc")  # PX4's COM_OBL_RC_ACT=0
-    await airborne(v, clock)
-    s = v.state()
-    sp = Setpoint(*s.position_ned_m, s.yaw_deg)
-    await v.start_offboard(sp)
-    for _ in range(20):
-        await v.set_setpoint(sp)
-        await clock.sleep(0.05)
+    s, sp = await offboard_hover(v, clock)
     v.inject_link_loss(2.0)
     lowest_m = math.inf
     for _ in range(100):  # 5 s of setpoints, 2 of them into the void
