@@ -20,7 +20,7 @@ from pathlib import Path
 from eaglemission.assembly import FlightOptions, fly_sync
 from eaglemission.commands.replay import replay
 from eaglemission.config import MissionFile, load_config
-from eaglemission.mcap_record import RecordOptions
+from eaglemission.mcap_options import RecordOptions
 from eaglemission.mcap_tools import log_records
 
 

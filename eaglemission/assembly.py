@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import autopilot_guard, fault_injection, live, mcap_record, registry
+from eaglemission import autopilot_guard, fault_injection, live, mcap_options, mcap_record, registry
 from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import BoundLoopClock, Clock, run_blocking, run_virtual
 from eaglemission.config import MissionFile, merge_params
@@ -265,7 +265,7 @@ class FlightOptions:
     """Called with the connected, open parts before the mission is built (test harnesses
     wrap parts here)."""
     record: Any = None
-    """A :class:`~eaglemission.mcap_record.RecordOptions`: record the flight as MCAP (None:
+    """A :class:`~eaglemission.mcap_options.RecordOptions`: record the flight as MCAP (None:
     as the config's ``recording`` section says, when ``record_config``)."""
     record_config: bool = True
     live: Any = None
@@ -422,7 +422,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
     shared = SharedContext()
     try:
         flight_plan = plan(cfg)
-        record = mcap_record.planned(cfg, opt.record, use_config=opt.record_config)
+        record = mcap_options.planned(cfg, opt.record, use_config=opt.record_config)
         driver, safe = build_vehicle(cfg, clock, shared, tap=record is not None)
     except (ConfigError, PluginError) as exc:
         return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual)
@@ -458,7 +458,7 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         result.header = header_lines(asm, virtual=virtual)
         if opt.on_header is not None:
             opt.on_header(result.header)
-        disk = None if record is None else mcap_record.disk_check(record, say)
+        disk = None if record is None else mcap_options.disk_check(record, say)
         sink, live_check = live.start(opt.live, say)
         sink_checks = [c for c in (disk, live_check) if c is not None]
         failed = [c for c in sink_checks if not c[1]]

@@ -37,6 +37,7 @@ import cv2
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
+from eaglemission import mcap_foxglove as fox
 from eaglemission import mcap_record as mr
 from eaglemission.geometry import CameraModel
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
@@ -137,7 +138,7 @@ def options_from_config(section: Any, listen: str | None = None) -> LiveOptions:
 
 def thumbnail_calibration(model: CameraModel, camera_id: str, t_ns: int, width_px: int) -> Any:
     """``foxglove.CameraCalibration`` of ``model`` scaled to an image ``width_px`` wide."""
-    msg = mr.calibration_message(model, camera_id, t_ns)
+    msg = fox.calibration_message(model, camera_id, t_ns)
     s = min(1.0, width_px / float(model.width_px))
     if s < 1.0:
         msg.width, msg.height = thumb_size(model.width_px, model.height_px, width_px)
@@ -214,6 +215,9 @@ class LiveSink:
     def frame(self, frame: Frame) -> None:
         if self._due("img:" + frame.camera_id, int(frame.timestamp_ns), self._image_period_ns):
             self._put(("frame", frame, time.time_ns()))
+
+    def saliency(self, frame: Frame, thumb: Any) -> None:
+        """Not served live: the thumbnails of the frames are (the recording has the maps)."""
 
     def calibration(self, camera_id: str, model: CameraModel, t_ns: int) -> None:
         self._put(("calibration", camera_id, model, int(t_ns)))
@@ -306,7 +310,7 @@ class LiveSink:
     def _publish_calibration(self, cid: str, model: CameraModel, t_ns: int) -> None:
         cal = thumbnail_calibration(model, cid, t_ns, self.options.image_width_px)
         self._log(mr.TOPIC_CALIBRATION.format(cid), "foxglove.CameraCalibration",
-                  "protobuf", mr.file_descriptor_set(CameraCalibration), "protobuf",
+                  "protobuf", fox.file_descriptor_set(CameraCalibration), "protobuf",
                   cal.SerializeToString(), t_ns)
         self._log(mr.TOPIC_MODEL.format(cid), "eaglemission.CameraModel", "jsonschema",
                   OBJECT_SCHEMA, "json", json.dumps(model_to_json(model)).encode(), t_ns)
@@ -325,7 +329,7 @@ class LiveSink:
         msg = CompressedImage(frame_id=cid, data=data, format="jpeg")
         msg.timestamp.FromNanoseconds(t_ns)
         self._log(mr.TOPIC_IMAGE.format(cid), "foxglove.CompressedImage", "protobuf",
-                  mr.file_descriptor_set(CompressedImage), "protobuf",
+                  fox.file_descriptor_set(CompressedImage), "protobuf",
                   msg.SerializeToString(), t_ns)
         meta = {"camera_id": cid, "seq": int(frame.seq), "timestamp_ns": t_ns,
                 "host_time_ns": int(host_ns), "exposure_s": float(frame.exposure_s),
@@ -341,11 +345,11 @@ class LiveSink:
         a client subscribes may be refused to it ("unknown channel"; foxglove-sdk 0.30.3)."""
         for cid in cameras:
             self._channel(mr.TOPIC_IMAGE.format(cid), "foxglove.CompressedImage", "protobuf",
-                          mr.file_descriptor_set(CompressedImage), "protobuf")
+                          fox.file_descriptor_set(CompressedImage), "protobuf")
             self._channel(mr.TOPIC_FRAME.format(cid), "eaglemission.FrameInfo", "jsonschema",
                           OBJECT_SCHEMA, "json")
             self._channel(mr.TOPIC_CALIBRATION.format(cid), "foxglove.CameraCalibration",
-                          "protobuf", mr.file_descriptor_set(CameraCalibration), "protobuf")
+                          "protobuf", fox.file_descriptor_set(CameraCalibration), "protobuf")
             self._channel(mr.TOPIC_MODEL.format(cid), "eaglemission.CameraModel", "jsonschema",
                           OBJECT_SCHEMA, "json")
         for kind in LOG_KINDS:
@@ -393,6 +397,10 @@ class Tee:
     def frame(self, frame: Any) -> None:
         for s in self.sinks:
             s.frame(frame)
+
+    def saliency(self, frame: Any, thumb: Any) -> None:
+        for s in self.sinks:
+            s.saliency(frame, thumb)
 
 
 def start(options: LiveOptions | None, say: Callable[[str], None] | None = None

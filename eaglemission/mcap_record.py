@@ -35,25 +35,24 @@ from __future__ import annotations
 import json
 import logging
 import queue
-import shutil
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Literal
 
 import cv2
-import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from google.protobuf import descriptor_pb2
 from mcap.writer import CompressionType, Writer
 
+from eaglemission import mcap_foxglove as fox
 from eaglemission.geometry import CameraModel
+from eaglemission.mcap_foxglove import calibration_message, file_descriptor_set
+from eaglemission.mcap_options import RecordOptions, part_path
 from eaglemission.recording import model_to_json
 from eaglemission.types import Frame
+from eaglemission.vehicle_tap import TOPIC_STATE
 
 log = logging.getLogger(__name__)
 
@@ -63,112 +62,15 @@ TOPIC_CALIBRATION = "/camera/{}/calibration"
 TOPIC_MODEL = "/camera/{}/model"
 TOPIC_LOG = "/log/{}"
 TOPIC_STATS = "/recorder/stats"
+TOPIC_ANNOTATIONS = "/camera/{}/annotations"
+TOPIC_SALIENCY = "/camera/{}/saliency"
+TOPIC_MOUNT = "/camera/{}/mount"
+TOPIC_TF = "/tf"
+TOPIC_LOCATION = "/location"  # not under /vehicle/: those are the replay's JSON
 CARRIED_LOG = ("/log/start", "/log/config")
 """Log topics whose first message every part of a split recording starts with."""
 LOG_SCHEMA = "eaglemission.log.{}"
 PROFILE = ""  # no ROS profile: protobuf and JSON channels
-
-
-@dataclass(frozen=True)
-class RecordOptions:
-    """How ``run --record FILE.mcap`` records (``FlightOptions.record``)."""
-
-    path: Path
-    jpeg_quality: int = 75
-    queue_frames: int = 32
-    """Frames waiting for the encoder; in real time a frame beyond them is dropped (counted),
-    in virtual time the mission waits for room (nothing is dropped)."""
-    chunk_s: float = 1.0
-    """A chunk is closed (and the file flushed) at least this often, in mission time."""
-    chunk_bytes: int = 4 << 20
-    compression: Literal["zstd", "lz4", "none"] = "zstd"
-    split_mb: float | None = None
-    """Go on in ``NAME.001.mcap``... once a file holds this many MB (None: one file)."""
-    min_free_mb: float = 0.0
-    """Refuse to take off with less free space on the recording's disk."""
-    lossless: bool = False
-    """PNG frames instead of JPEG: the replay's detector sees exactly the processed pixels
-    (``eaglemission replay`` equals the flight only then)."""
-
-
-def part_path(path: Path, part: int) -> Path:
-    """``NAME.mcap`` (part 0), ``NAME.001.mcap``, ``NAME.002.mcap``..."""
-    return path if part == 0 else path.with_name(f"{path.stem}.{part:03d}{path.suffix}")
-
-
-def options_from_config(rec: Any, *, now: datetime | None = None) -> RecordOptions:
-    """The :class:`RecordOptions` of a mission file's ``recording`` section, ``{utc}`` in its
-    path replaced (``-1``, ``-2``... appended to it for a second flight within the same second);
-    raises ValueError when the file exists (recordings are never overwritten)."""
-    stamp = (now or datetime.now(UTC)).strftime("%Y%m%dT%H%M%SZ")
-    path = Path(str(rec.path).replace("{utc}", stamp))
-    k = 0
-    while "{utc}" in str(rec.path) and path.exists():  # two flights within a second
-        k += 1
-        path = Path(str(rec.path).replace("{utc}", f"{stamp}-{k}"))
-    if path.suffix.lower() != ".mcap":
-        raise ValueError(f"recording.path: must end in .mcap, got {str(rec.path)!r}")
-    if path.exists():
-        raise ValueError(f"recording.path: {path} exists (recordings are never overwritten): "
-                         "choose a new name or put {utc} in it")
-    return RecordOptions(path, jpeg_quality=int(rec.quality), split_mb=rec.split_mb,
-                         min_free_mb=float(rec.min_free_mb))
-
-
-def planned(cfg: Any, record: RecordOptions | None, *, use_config: bool) -> RecordOptions | None:
-    """How a flight records: ``record`` (``run --record``), else the mission file's
-    ``recording`` section when ``use_config``; raises ConfigError for a bad or existing path."""
-    if record is not None or not use_config or cfg.recording is None:
-        return record
-    from eaglemission.errors import ConfigError
-
-    try:
-        return options_from_config(cfg.recording)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-
-
-def disk_check(options: RecordOptions, say: Callable[[str], None] | None = None
-               ) -> tuple[str, bool, str]:
-    """``(name, passed, detail)``: the free space where the recording goes vs. ``min_free_mb``
-    (also said as a dry-run check line)."""
-    name, ok, detail = _disk_check(options)
-    if say is not None:
-        say(f"  [{'ok' if ok else 'FAIL'}] {name}: {detail}")
-    return name, ok, detail
-
-
-def _disk_check(options: RecordOptions) -> tuple[str, bool, str]:
-    where = options.path.resolve().parent
-    while not where.exists() and where != where.parent:
-        where = where.parent  # the recorder creates the missing folders
-    try:
-        free_mb = shutil.disk_usage(where).free / 1e6
-    except OSError as exc:
-        return ("recording: disk space", False, f"cannot read the free space at {where}: {exc}")
-    ok = free_mb >= options.min_free_mb
-    detail = (f"{free_mb:.0f} MB free at {where} (recording {options.path}, needs "
-              f"recording.min_free_mb {options.min_free_mb:g})")
-    if not ok:
-        detail = (f"only {free_mb:.0f} MB free at {where}, below recording.min_free_mb "
-                  f"{options.min_free_mb:g}: free space there or record elsewhere")
-    return ("recording: disk space", ok, detail)
-
-
-def file_descriptor_set(cls: Any) -> bytes:
-    """The protobuf schema of a message class as MCAP wants it (a FileDescriptorSet)."""
-    fds = descriptor_pb2.FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: Any) -> None:
-        for dep in fd.dependencies:
-            if dep.name not in seen:
-                seen.add(dep.name)
-                add(dep)
-        fd.CopyToProto(fds.file.add())
-
-    add(cls.DESCRIPTOR.file)
-    return bytes(fds.SerializeToString())
 
 
 def log_json_schema(kind: str) -> bytes:
@@ -186,21 +88,6 @@ def _plain(o: Any) -> Any:
 
 
 _OBJECT_SCHEMA = json.dumps({"type": "object", "additionalProperties": True}).encode()
-
-
-def calibration_message(model: CameraModel, camera_id: str, t_ns: int) -> CameraCalibration:
-    K = np.asarray(model.K, dtype=np.float64)
-    d = [float(v) for v in model.distortion]
-    dist_model = "rational_polynomial" if len(d) > 5 else "plumb_bob"
-    d += [0.0] * ((8 if len(d) > 5 else 5) - len(d))
-    msg = CameraCalibration(frame_id=camera_id, width=int(model.width_px),
-                            height=int(model.height_px), distortion_model=dist_model, D=d,
-                            K=[float(v) for v in K.ravel()],
-                            R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-                            P=[K[0, 0], K[0, 1], K[0, 2], 0.0, K[1, 0], K[1, 1], K[1, 2], 0.0,
-                               0.0, 0.0, 1.0, 0.0])
-    msg.timestamp.FromNanoseconds(int(t_ns))
-    return msg
 
 
 class McapRecorder:
@@ -259,6 +146,7 @@ class McapRecorder:
         self._log_write: Callable[..., Any] | None = None
         self._reporting = False
         self._closed = False
+        self._last_state_ns: int | None = None
         self._chunk_t0: int | None = None
         self._t_max = 0
         self._chunk_size = 0
@@ -288,8 +176,9 @@ class McapRecorder:
         if record.get("kind") == "end" and "frame_counts" in record:
             with self._lock:
                 self.stats["cameras"] = record["frame_counts"]
-        self._queue.put(("record", str(record.get("kind", "unknown")), int(record["t_ns"]),
-                         time.time_ns(), line))
+        kind = str(record.get("kind", "unknown"))
+        self._queue.put(("record", kind, int(record["t_ns"]), time.time_ns(), line,
+                         record if kind == "detection" else None))
         self._report()
 
     def message(self, topic: str, t_ns: int, payload: Mapping[str, Any]) -> None:
@@ -313,6 +202,12 @@ class McapRecorder:
             return
         self._queue.put(("frame", frame, time.time_ns()))
         self._report()
+
+    def saliency(self, frame: Frame, thumb: Any) -> None:
+        """The detector's map of a processed frame, shrunk (``/camera/<id>/saliency``)."""
+        if thumb is not None and self._admit():
+            self._queue.put(("saliency", frame.camera_id, int(frame.timestamp_ns),
+                             time.time_ns(), thumb))
 
     def calibration(self, camera_id: str, model: CameraModel, t_ns: int) -> None:
         """Both messages describing a camera (``/camera/<id>/calibration`` and ``/model``)."""
@@ -379,10 +274,20 @@ class McapRecorder:
                             item[4].encode("utf-8"))
                 if self._writer is not None:
                     self.stats["records_written"] += 1
+                if item[5] is not None:  # a detection: its overlay on the frame
+                    self._proto(TOPIC_ANNOTATIONS.format(item[5]["camera"]),
+                                fox.detection_annotations(item[5]), int(item[5]["frame_t_ns"]),
+                                item[3])
+            elif kind == "saliency":
+                _, cid, t_ns, host_ns, thumb = item
+                self._proto(TOPIC_SALIENCY.format(cid), fox.saliency_image(cid, t_ns, thumb),
+                            t_ns, host_ns)
             elif kind == "json":
                 data = json.dumps(item[4], separators=(",", ":"), default=_plain).encode()
                 self._write(item[1], "eaglemission" + item[1].replace("/", "."), "jsonschema",
                             _OBJECT_SCHEMA, "json", item[2], item[3], data)
+                if item[1] == TOPIC_STATE:
+                    self._vehicle_views(item[4].get("state") or {}, item[2], item[3])
             elif kind == "calibration":
                 _, cid, model, t_ns, host_ns = item
                 msg = calibration_message(model, cid, t_ns)
@@ -392,12 +297,14 @@ class McapRecorder:
                 self._write(TOPIC_MODEL.format(cid), "eaglemission.CameraModel", "jsonschema",
                             _OBJECT_SCHEMA, "json", t_ns, host_ns,
                             json.dumps(model_to_json(model)).encode())
+                self._proto(TOPIC_MOUNT.format(cid), fox.mount_transform(t_ns, cid, model),
+                            t_ns, host_ns)
         except Exception as exc:  # noqa: BLE001 - disk full, I/O error: count, report, stop
             self._fail(f"write failed: {type(exc).__name__}: {exc}")
         finally:
             if kind == "frame":
                 self._frame_slots.release()
-            elif kind in ("record", "json"):
+            elif kind in ("record", "json", "saliency"):
                 with self._lock:
                     self._records_pending -= 1
         self._flush_if_due()
@@ -461,6 +368,7 @@ class McapRecorder:
                     host_ns, img.SerializeToString(), sequence=frame.seq)
         meta = {"camera_id": cid, "seq": int(frame.seq), "timestamp_ns": int(frame.timestamp_ns),
                 "host_time_ns": int(host_ns), "exposure_s": float(frame.exposure_s),
+                "device_timestamp_ns": frame.device_timestamp_ns,
                 "width_px": frame.width_px, "height_px": frame.height_px,
                 "jpeg_quality": self.jpeg_quality, "jpeg_bytes": len(data),
                 "encode_ms": round(encode_ms, 3)}
@@ -470,6 +378,25 @@ class McapRecorder:
         if self._writer is not None:
             self.stats["frames_written"] += 1
 
+    def _vehicle_views(self, state: Mapping[str, Any], log_ns: int, host_ns: int) -> None:
+        """The vehicle in Foxglove's 3D panel (``/tf``) and on its map (``/location``), once
+        per telemetry sample (not again for the same sample changed by a command)."""
+        t_ns = int(state.get("timestamp_ns") or log_ns)
+        if t_ns == self._last_state_ns:
+            return
+        self._last_state_ns = t_ns
+        tf = fox.vehicle_transform(t_ns, state)
+        if tf is not None:
+            self._proto(TOPIC_TF, tf, log_ns, host_ns)
+        fix = fox.location_fix(t_ns, state)
+        if fix is not None:
+            self._proto(TOPIC_LOCATION, fix, log_ns, host_ns)
+
+    def _proto(self, topic: str, msg: Any, log_ns: int, host_ns: int) -> None:
+        """A Foxglove protobuf message (its schema named by its full protobuf name)."""
+        self._write(topic, msg.DESCRIPTOR.full_name, "protobuf", fox.schema_of(type(msg)),
+                    "protobuf", log_ns, host_ns, msg.SerializeToString())
+
     def _write(self, topic: str, schema_name: str, schema_encoding: str, schema: bytes,
                message_encoding: str, log_ns: int, publish_ns: int, data: bytes, *,
                sequence: int = 0, carry: bool = True) -> None:
@@ -478,7 +405,7 @@ class McapRecorder:
             self.stats["messages_lost"] += 1
             return
         if carry and self.split_bytes is not None and topic not in self._carry and (
-                topic in CARRIED_LOG or topic.endswith(("/calibration", "/model"))):
+                topic in CARRIED_LOG or topic.endswith(("/calibration", "/model", "/mount"))):
             self._carry[topic] = (topic, schema_name, schema_encoding, schema,
                                   message_encoding, log_ns, publish_ns, data)
         cid = self._channels.get(topic)

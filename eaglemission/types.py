@@ -48,6 +48,8 @@ class Frame:
     camera_id : the rig's name for the camera (``"wide"``, ``"narrow"``)
     seq : frame counter of this camera, strictly increasing (gaps mean dropped frames)
     exposure_s : exposure time, 0 when unknown
+    device_timestamp_ns : the camera's own stamp of the frame (its clock, ns; GenICam's
+        buffer timestamp), before mapping to the host clock; None when the device has none
     """
 
     image: Image
@@ -55,6 +57,7 @@ class Frame:
     camera_id: str
     seq: int
     exposure_s: float = 0.0
+    device_timestamp_ns: int | None = None
 
     def __post_init__(self) -> None:
         img = self.image

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,8 +28,8 @@ from eaglemission.missions.runner import MissionRunner
 
 from eaglemission.config import MissionFile
 from eaglemission.context import WORLD
-from eaglemission.interfaces import FlightParts, MissionHooks
-from eaglemission.types import VehicleState
+from eaglemission.interfaces import FlightParts, FlightRecorder, MissionHooks
+from eaglemission.types import Frame, VehicleState
 
 
 @dataclass
@@ -126,6 +127,14 @@ def _evaluate(result: MissionResult, trajectory: list[VehicleState], cfg: Missio
                     expected_action=expected_action)
 
 
+def _to_recorder(recorder: FlightRecorder) -> Callable[[Frame, Any], None]:
+    """A processed frame and its saliency thumbnail, handed to the flight recorder."""
+    def processed(frame: Frame, thumb: Any) -> None:
+        recorder.frame(frame)
+        recorder.saliency(frame, thumb)
+    return processed
+
+
 class ApproachMission:
     """Plugin ``approach``: the approach-to-grasp mission of paper Sec. 3.2 on assembled
     parts (``parts``: :class:`~eaglemission.interfaces.FlightParts`)."""
@@ -193,7 +202,8 @@ class ApproachMission:
                                clock=clock, mission_log=mlog,
                                grasp_callback=h.grasp_callback, on_frame=h.on_frame,
                                on_telemetry=on_telemetry, record_all=h.record_all,
-                               on_processed=None if h.recorder is None else h.recorder.frame,
+                               on_processed=None if h.recorder is None else _to_recorder(
+                                   h.recorder),
                                on_state=h.on_state, autopilot_guard=p.autopilot_guard)
         self.runner = runner
         if self._interrupt is not None:

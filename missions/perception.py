@@ -26,10 +26,12 @@ from eaglemission.missions.target_state import (
     plane_down_m,
     size_range_scale,
 )
+from numpy.typing import NDArray
 
 from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter, Tracker
+from eaglemission.mcap_foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
     DetectionResult,
@@ -121,6 +123,8 @@ class Measurement:
     perception_ms: float
     anomaly: str | None = None
     """What was wrong with the detector's output (a non-finite map): its detections ignored."""
+    saliency_thumb: NDArray[np.uint8] | None = None
+    """The detector's map, 160 px wide, 0..255 (recordings: ``/camera/<id>/saliency``)."""
 
     @property
     def fine_measurement(self) -> bool:
@@ -250,7 +254,8 @@ class Perception:
         return Measurement(frame.camera_id, frame, state, req.estimator, det,
                            len(result.detections), tracked,
                            est, prov, refined, failure, hint, plane,
-                           (time.perf_counter() - t0) * 1e3, anomaly)
+                           (time.perf_counter() - t0) * 1e3, anomaly,
+                           None if anomaly else saliency_thumbnail(result.saliency))
 
     def _estimate(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
                   ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,

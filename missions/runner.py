@@ -92,7 +92,7 @@ class MissionRunner:
     coarse, fine : estimators; fitter : the plane fitter; tracker : the appearance tracker
     clock : the mission clock; mission_log : JSON-lines log
     grasp_callback : awaited in GRASP_READY when ``mission.grasp_action == "callback"``
-    on_frame, on_processed : called (loop thread) with every grabbed / processed frame
+    on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
     autopilot_guard : the assembly's (applied) autopilot-parameter guard; None: its own
     """
@@ -105,7 +105,7 @@ class MissionRunner:
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
                  on_telemetry: Callable[[VehicleState], None] | None = None, record_all: bool = False,
-                 on_processed: Callable[[Frame], None] | None = None,
+                 on_processed: Callable[[Frame, Any], None] | None = None,
                  on_state: Callable[[float, str, str, str], None] | None = None,
                  autopilot_guard: AutopilotGuard | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
@@ -115,7 +115,7 @@ class MissionRunner:
         self.tools = {c: Tools(detectors[c], coarse, fine, fitter, tracker) for c in cameras}
         self.clock, self.log = clock, mission_log
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
-        self.record_all, self.on_processed = record_all, on_processed or (lambda _frame: None)
+        self.record_all, self.on_processed = record_all, on_processed or (lambda _f, _t: None)
         self.machine = ApproachMachine(on_change=self._on_state_change)
         self.perception = Perception(params, cfg.target)
         self.track = TargetTracking(cfg, params, self.models, mission_log)
@@ -283,7 +283,7 @@ class MissionRunner:
         cam_id = meas.camera_id
         self.perception_ms.append(meas.perception_ms)
         self._processed[cam_id] += 1
-        self.on_processed(meas.frame)
+        self.on_processed(meas.frame, meas.saliency_thumb)
         det = meas.detection
         self.detection_frames.append((self._t_s(), cam_id, self.machine.state.value,
                                       meas.frame.seq, None if det is None else det.center_px))

@@ -99,12 +99,15 @@ class FaultyCamera:
             img = rng.integers(0, 256, size=img.shape, dtype=np.uint8)
         if self._on("truncated_frame", now):
             img = img[: max(1, int(img.shape[0] * 0.6))].copy()
+        device_ns = frame.device_timestamp_ns
         jump = self._on("camera_clock_jump", now)
-        if jump is not None:
+        if jump is not None:  # the device's clock jumps: its stamps and the mapped ones
             stamp += int(round(jump.value * 1e9))
+            if device_ns is not None:
+                device_ns += int(round(jump.value * 1e9))
         if img is frame.image and stamp == frame.timestamp_ns:
             return frame
-        return Frame(img, stamp, frame.camera_id, frame.seq, frame.exposure_s)
+        return Frame(img, stamp, frame.camera_id, frame.seq, frame.exposure_s, device_ns)
 
     def _occlude(self, frame: Frame) -> Any:
         """The target covered with the ground colour around it (a cover larger than it)."""

@@ -507,7 +507,8 @@ class GenICamCamera:
         ts = self._stamp(dev_ns, host_ns)
         self._seq += 1
         self.stats["frames"] += 1
-        return Frame(image, ts, self.camera_id, self._seq, exposure_s=float(self._exposure_s))
+        return Frame(image, ts, self.camera_id, self._seq, exposure_s=float(self._exposure_s),
+                     device_timestamp_ns=dev_ns if dev_ns > 0 else None)
 
     @staticmethod
     def _device_timestamp_ns(buffer: Any) -> int:

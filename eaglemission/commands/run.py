@@ -127,7 +127,7 @@ def _record_options(section: Any, path: Path, quality: int | None, lossless: boo
                     ) -> Any:
     """``--record FILE.mcap``: the config's ``recording`` settings (quality, splitting, disk
     check) with this path; ``--record-quality`` over the config's quality."""
-    from eaglemission.mcap_record import RecordOptions
+    from eaglemission.mcap_options import RecordOptions
 
     if section is None:
         return RecordOptions(path, jpeg_quality=75 if quality is None else quality,

@@ -54,7 +54,8 @@ class FlightRecorder(Protocol):
     ``bind`` is called once with the mission log's ``write(kind, **fields)``, so the recorder
     reports its own problems (write errors, dropped frames) in the log; ``record`` with every
     record the log gets and the exact JSON line written to the ``--log`` file (one source of
-    truth); ``frame`` with every frame the mission processed, on the loop thread. None of
+    truth); ``frame`` with every frame the mission processed, on the loop thread, and
+    ``saliency`` with it and its detector's map shrunk (uint8; None: no usable map). None of
     them may block for long or raise: a recording never stops a mission.
     """
 
@@ -63,6 +64,8 @@ class FlightRecorder(Protocol):
     def record(self, record: Mapping[str, Any], line: str) -> None: ...
 
     def frame(self, frame: Any) -> None: ...
+
+    def saliency(self, frame: Any, thumb: Any) -> None: ...
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from eaglemission.assembly import EXIT_REPLAY_DIVERGED, FlightOptions, fly_sync
 from eaglemission.cli import main
 from eaglemission.commands.replay import replay
 from eaglemission.config import MissionFile, load_config
-from eaglemission.mcap_record import RecordOptions
+from eaglemission.mcap_options import RecordOptions
 from eaglemission.mcap_tools import Scan, log_records, scan
 
 SEEDS = (1, 2)

@@ -21,7 +21,7 @@ from eaglemission.assembly import EXIT_PREFLIGHT, FlightOptions, fly_sync
 from eaglemission.cli import main
 from eaglemission.config import MissionFile, load_config
 from eaglemission.errors import ConfigError
-from eaglemission.mcap_record import planned
+from eaglemission.mcap_options import planned
 from eaglemission.mcap_tools import messages, parts_of
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.types import Frame
@@ -158,7 +158,7 @@ def test_utc_names_never_collide(tmp_path: Path) -> None:
     from datetime import UTC, datetime
 
     from eaglemission.config import RecordingConfig
-    from eaglemission.mcap_record import options_from_config
+    from eaglemission.mcap_options import options_from_config
 
     rec = RecordingConfig(path=str(tmp_path / "{utc}.mcap"))
     now = datetime(2026, 12, 1, 10, 15, 2, tzinfo=UTC)

@@ -19,6 +19,9 @@ from deployment_helpers import cli, log_records, run_env
 from eaglemission.missions.log import MissionLog
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -29,7 +32,8 @@ from eaglemission.assembly import FlightOptions, fly_sync
 from eaglemission.cli import main
 from eaglemission.config import MissionFile, load_config
 from eaglemission.interfaces import MissionHooks
-from eaglemission.mcap_record import McapRecorder, RecordOptions
+from eaglemission.mcap_options import RecordOptions
+from eaglemission.mcap_record import McapRecorder
 from eaglemission.mcap_tools import Scan, recover, scan
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 
@@ -96,6 +100,54 @@ def test_recording_holds_every_processed_frame_calibrations_and_the_log(recorded
     # log time is the mission clock (virtual here): the log records' own t_ns
     assert all(m.log_time == json.loads(m.data)["t_ns"] for t, _, m in msgs
                if t.startswith("/log/"))
+
+
+def test_foxglove_panels_decode_with_foxglove_schemas(recorded) -> None:
+    """Detections as image annotations on their frame, saliency thumbnails, the vehicle's and
+    cameras' transforms and its map position: decoded with Foxglove's schema package."""
+    import cv2
+    import numpy as np
+
+    mcap, jsonl = recorded
+    msgs = _messages(mcap)
+    log = list(log_records(jsonl))
+    for cam in (CAMERA_WIDE, CAMERA_NARROW):
+        dets = [r for r in log if r["kind"] == "detection" and r["camera"] == cam]
+        ann = [(m, ImageAnnotations.FromString(m.data)) for t, s, m in msgs
+               if t == f"/camera/{cam}/annotations"]
+        assert {s for t, s, _ in msgs if t == f"/camera/{cam}/annotations"} == {
+            "foxglove.ImageAnnotations"}
+        assert len(ann) == len(dets) > 0, cam  # one per processed frame: drawn or cleared
+        image_stamps = {m.log_time for t, _, m in msgs if t == f"/camera/{cam}/image"}
+        for (m, a), d in zip(ann, dets, strict=True):
+            assert m.log_time == d["frame_t_ns"] in image_stamps  # on its very frame
+            if d["corners_px"]:
+                (loop,) = a.points
+                assert loop.timestamp.ToNanoseconds() == d["frame_t_ns"]
+                assert [(p.x, p.y) for p in loop.points] == [tuple(c) for c in d["corners_px"]]
+            else:
+                assert not a.points and not a.texts
+        assert any(a.points for _, a in ann) or cam == CAMERA_NARROW  # wide saw the target
+        sal = [CompressedImage.FromString(m.data) for t, _, m in msgs
+               if t == f"/camera/{cam}/saliency"]
+        assert len(sal) == len(dets)
+        thumb = cv2.imdecode(np.frombuffer(sal[-1].data, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert sal[-1].format == "png" and thumb.shape == (120, 160) and thumb.max() > 0
+        (mount,) = [FrameTransforms.FromString(m.data).transforms[0] for t, _, m in msgs
+                    if t == f"/camera/{cam}/mount"]
+        assert (mount.parent_frame_id, mount.child_frame_id) == ("base_link", cam)
+        assert abs(mount.translation.x - 0.10) < 1e-9  # the config's lever arm
+    states = [json.loads(m.data)["state"] for t, _, m in msgs if t == "/vehicle/state"]
+    tfs = [FrameTransforms.FromString(m.data).transforms[0] for t, _, m in msgs if t == "/tf"]
+    samples = {s["timestamp_ns"] for s in states}  # one transform per telemetry sample
+    assert len(tfs) == len(samples) > 10
+    last = tfs[-1]
+    assert (last.parent_frame_id, last.child_frame_id) == ("local_ned", "base_link")
+    assert [last.translation.x, last.translation.y, last.translation.z] == states[-1][
+        "position_ned_m"]
+    fixes = [LocationFix.FromString(m.data) for t, _, m in msgs if t == "/location"]
+    assert len(fixes) == len(samples)
+    assert fixes[-1].latitude == states[-1]["geodetic"]["latitude_deg"] != 0
 
 
 def _chunk_ends_and_counts(path: Path) -> list[tuple[int, int]]:

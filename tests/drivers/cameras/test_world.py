@@ -113,7 +113,7 @@ def test_stripping_ground_truth_gives_identical_frames(sim_config, target_config
         clock.advance(1 / 30)
     # Frame carries no ground truth
     assert {f.name for f in dataclasses.fields(Frame)} == {
-        "image", "timestamp_ns", "camera_id", "seq", "exposure_s"}
+        "image", "timestamp_ns", "camera_id", "seq", "exposure_s", "device_timestamp_ns"}
     # the same renders without any ground-truth bookkeeping
     for f in frames:
         img, _ = w2.render(wide_model, pos, q, f.timestamp_ns)
