@@ -148,6 +148,18 @@ def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
     return Recovered(src, out, st.messages, st.chunks, st.complete, st.stopped)
 
 
+def recover_all(source: str | Path, output: str | Path | None = None) -> list[Recovered]:
+    """:func:`recover` every part of a recording, split or not: part ``k`` of ``NAME.mcap``
+    goes to part ``k`` of ``output`` (default ``NAME.recovered.mcap``, then
+    ``NAME.recovered.001.mcap``...), complete parts too, so the recovered parts read together
+    as the original did (:func:`messages`)."""
+    src = Path(source)
+    first = Path(output) if output is not None else src.with_name(src.stem + ".recovered.mcap")
+    return [recover(part, first if k == 0 else
+                    first.with_name(f"{first.stem}.{k:03d}{first.suffix}"))
+            for k, part in enumerate(parts_of(src))]
+
+
 def parts_of(path: str | Path) -> list[Path]:
     """The files of a recording: ``NAME.mcap`` and, when it was split (``recording.split_mb``),
     ``NAME.001.mcap``, ``NAME.002.mcap``... as long as they follow each other."""

@@ -308,6 +308,7 @@ class GenICamCamera:
         self._next_reopen = 0.0
         self._backoff = self.config.reopen_backoff_s
         self._seq = 0
+        self._device_frame_id: int | None = None  # the last buffer's frame id
         self._exposure_s = model.exposure_s
         self.clock_mapper = DeviceClockMapper(self.config.clock_window)
         self.missing_nodes: list[str] = []
@@ -488,6 +489,7 @@ class GenICamCamera:
                     fmt = str(comp.data_format)
                     raw = np.array(comp.data, copy=True)
                     dev_ns = self._device_timestamp_ns(buffer)
+                    frame_id = _frame_id(buffer)
             except core.TimeoutException:
                 self.stats["timeouts"] += 1
                 raise GrabTimeout(self.camera_id, timeout_s) from None
@@ -505,10 +507,19 @@ class GenICamCamera:
                              f"{self.model.width_px}x{self.model.height_px}: fix resolution_px "
                              "or the device's Width/Height")
         ts = self._stamp(dev_ns, host_ns)
-        self._seq += 1
+        self._seq += self._seq_step(frame_id)
         self.stats["frames"] += 1
         return Frame(image, ts, self.camera_id, self._seq, exposure_s=float(self._exposure_s),
                      device_timestamp_ns=dev_ns if dev_ns > 0 else None)
+
+    def _seq_step(self, frame_id: int | None) -> int:
+        """How far ``seq`` advances: the device's frame-id step (the frames it delivered that
+        were not fetched show as a gap, counted as skipped), else 1; a frame id that does not
+        advance (the device restarted its count) also steps by 1, so ``seq`` keeps rising."""
+        last, self._device_frame_id = self._device_frame_id, frame_id
+        if frame_id is None or last is None or frame_id <= last:
+            return 1
+        return frame_id - last
 
     @staticmethod
     def _device_timestamp_ns(buffer: Any) -> int:
@@ -547,3 +558,12 @@ class GenICamCamera:
         return {"camera_id": self.camera_id, "open": self._ia is not None, "is_lost": self._lost,
                 "device": dict(self.device_info), "missing_nodes": list(self.missing_nodes),
                 "clock": self.clock_mapper.stats(), **self.stats}
+
+
+def _frame_id(buffer: Any) -> int | None:
+    """The GenTL buffer's frame id (the device's frame counter), None when it has none."""
+    try:
+        v = int(buffer.frame_id)
+    except Exception:  # noqa: BLE001 - GenTL raises NotAvailable when the producer has none
+        return None
+    return v if v > 0 else None

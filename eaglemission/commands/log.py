@@ -14,8 +14,8 @@ from eaglemission.commands import Command
 def _add(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE.mcap", help="a recording (run --record FILE.mcap)")
     p.add_argument("--recover", action="store_true",
-                   help="rewrite the file, read linearly up to its last complete chunk, into "
-                        "a valid MCAP file (-o, default FILE.recovered.mcap)")
+                   help="rewrite the file (every part of a split one), read linearly up to its last "
+                        "complete chunk, into a valid MCAP file (-o, default FILE.recovered.mcap)")
     p.add_argument("-o", "--output", metavar="OUT", help="where --recover writes")
     p.add_argument("--plot", metavar="PNG", help="draw the recorded flight: reported path, "
                    "target estimates, route, geofence, state changes, altitude over time")
@@ -41,11 +41,12 @@ def plot(path: str, out: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from eaglemission.mcap_tools import recover, summarize
+    from eaglemission.mcap_tools import recover_all, summarize
 
     try:
         if args.recover:
-            print(recover(args.file, args.output).line())
+            for rec in recover_all(args.file, args.output):
+                print(rec.line())
         else:
             if args.output:
                 print("-o needs --recover", file=sys.stderr)

@@ -61,6 +61,21 @@ def test_viky_frames_of_requested_size_and_format_with_increasing_stamps(viky, f
         assert np.array_equal(img[..., 0], img[..., 2])
 
 
+def test_seq_follows_the_devices_frame_counter(viky):
+    """Grabbing slower than the device delivers: the frames it produced meanwhile (its GenTL
+    frame id; dropped from the full buffer queue) show as gaps in ``seq``, which the mission's
+    camera pump counts as skipped."""
+    cam = _cam(viky, frame_rate_hz=30.0, num_buffers=2)
+    with cam:
+        frames = []
+        for _ in range(6):
+            frames.append(cam.grab(timeout_s=2.0))
+            time.sleep(0.2)
+    seqs = [f.seq for f in frames]
+    assert np.all(np.diff(seqs) > 0), seqs
+    assert seqs[-1] - seqs[0] > len(seqs) + 5, seqs  # frames the device delivered unfetched
+
+
 def test_viky_device_selection_by_serial_and_model(viky):
     with _cam(viky, serial_number="2", model="Viky") as cam:
         assert cam.health()["device"]["id_"] == "VikyTL_DEV_blue"
