@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import queue
 import threading
 import time
@@ -70,6 +71,9 @@ TOPIC_LOCATION = "/location"  # not under /vehicle/: those are the replay's JSON
 CARRIED_LOG = ("/log/start", "/log/config")
 """Log topics whose first message every part of a split recording starts with."""
 LOG_SCHEMA = "eaglemission.log.{}"
+ENCODER_NICENESS = 10
+"""The encoder thread runs this much nicer than the mission (Linux: per thread): on a busy
+computer perception and the setpoint loop get the cores first; the bounded queue absorbs it."""
 PROFILE = ""  # no ROS profile: protobuf and JSON channels
 
 
@@ -88,6 +92,16 @@ def _plain(o: Any) -> Any:
 
 
 _OBJECT_SCHEMA = json.dumps({"type": "object", "additionalProperties": True}).encode()
+
+
+def lower_thread_priority(niceness: int) -> None:
+    """Make the calling thread ``niceness`` nicer (Linux threads have their own nice value;
+    elsewhere, or when refused, it keeps its priority and says so at debug level)."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
+    except (AttributeError, OSError) as exc:
+        log.debug("thread priority unchanged: %s", exc)
 
 
 class McapRecorder:
@@ -248,6 +262,7 @@ class McapRecorder:
 
     # -- the writer thread --------------------------------------------------------------------
     def _run(self) -> None:
+        lower_thread_priority(ENCODER_NICENESS)
         try:
             self._open()
         except Exception as exc:  # noqa: BLE001 - an unwritable path must not stop a flight
