@@ -102,6 +102,22 @@ def test_recording_holds_every_processed_frame_calibrations_and_the_log(recorded
                if t.startswith("/log/"))
 
 
+def test_a_recorded_flight_processes_the_frames_an_unrecorded_one_does(recorded) -> None:
+    """Same mission file, same seed, virtual time: recording changes nothing the mission saw."""
+    mcap, jsonl = recorded
+    end_rec = next(r for r in log_records(jsonl) if r["kind"] == "end")
+    cfg = MissionFile.model_validate(yaml.safe_load((mcap.parent / "m.yaml").read_text()))
+    res = fly_sync(cfg, FlightOptions(hooks=MissionHooks(log_path=mcap.parent / "plain.jsonl")))
+    end = next(r for r in log_records(mcap.parent / "plain.jsonl") if r["kind"] == "end")
+    assert end["frames"] == end_rec["frames"] and sum(end["frames"].values()) >= 40
+    assert end["frame_counts"] == end_rec["frame_counts"]
+    assert all(n["dropped"] == 0 for n in end_rec["frame_counts"].values())
+    stats = json.loads(next(m.data for t, _, m in _messages(mcap) if t == "/recorder/stats"))
+    assert stats["frames_written"] == sum(end_rec["frames"].values())
+    assert stats["frames_dropped"] == 0
+    assert res.exit_code == 3
+
+
 def test_foxglove_panels_decode_with_foxglove_schemas(recorded) -> None:
     """Detections as image annotations on their frame, saliency thumbnails, the vehicle's and
     cameras' transforms and its map position: decoded with Foxglove's schema package."""
