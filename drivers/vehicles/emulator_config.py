@@ -44,6 +44,10 @@ MSG_NAMES: dict[int, str] = {v: k for k, v in MSG_IDS.items()}
 DISTANCE_NO_RETURN_CM = 65535
 """UINT16_MAX: what PX4 SIH sends beyond the maximum range ("lightware lw20 behaviour"; also
 recorded after the landing of scenario a)."""
+PX4_SIH_RANGEFINDER = RangefinderParams(enabled=True, noise_std_m=0.0, min_range_m=0.0,
+                                        max_range_m=100.0)
+"""PX4 SIH's downward distance sensor as recorded (g): min_distance 0, max_distance 10000 cm,
+no noise (it matches the truth ``height / cos(tilt)`` within 0.7 cm RMS)."""
 DISTANCE_SENSOR_MAX_HZ = 50.0
 """PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
 
@@ -56,7 +60,9 @@ def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderP
     (PX4 assigns ``metres * 1e2f`` to a uint16); beyond the maximum range or with the beam at
     the horizon, :data:`DISTANCE_NO_RETURN_CM`; below the minimum (on the ground) the geometric
     range, which is outside ``[min, max]`` -- PX4 never withholds a reading, the receiver checks
-    the range."""
+    the range. A body origin below the ground plane gives a negative range, which wraps around
+    in the uint16 (recorded g, fact 29: 0 at the contact, then 65523-65535 cm while SIH let the
+    vehicle sink 0.01-0.14 m)."""
     min_cm = int(round(params.min_range_m * 100.0))
     max_cm = int(round(params.max_range_m * 100.0))
     r = rangefinder_reading_m(true_down_m, cos_tilt, params, noise)
@@ -64,7 +70,10 @@ def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderP
         return min(DISTANCE_NO_RETURN_CM - 1, max(0, int(r * 100.0))), min_cm, max_cm
     if cos_tilt <= 0.1 or -true_down_m / cos_tilt > params.max_range_m:
         return DISTANCE_NO_RETURN_CM, min_cm, max_cm
-    return max(0, min(min_cm - 1, int(-true_down_m / cos_tilt * 100.0))), min_cm, max_cm
+    below_cm = int(-true_down_m / cos_tilt * 100.0)  # truncated toward 0, as C's float -> int
+    if below_cm < 0:
+        return below_cm % (DISTANCE_NO_RETURN_CM + 1), min_cm, max_cm
+    return max(0, min(min_cm - 1, below_cm)), min_cm, max_cm
 
 
 class EmulatorConfig(BaseModel):
