@@ -49,6 +49,8 @@ PX4_SIH_RANGEFINDER = RangefinderParams(enabled=True, noise_std_m=0.0, min_range
 """PX4 SIH's downward distance sensor as recorded (g): min_distance 0, max_distance 10000 cm,
 no noise (it matches the truth ``height / cos(tilt)`` within 0.7 cm RMS)."""
 DISTANCE_SENSOR_MAX_HZ = 50.0
+AUTO_APPROACH_GAIN_PER_S = 0.45
+"""RTL's climb / return gain fitted to recorded f1 / f2 (AutopilotParams.auto_approach_gain_per_s)."""
 """PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
 
 
@@ -167,8 +169,10 @@ def emulator_autopilot_params(cfg: EmulatorConfig, p: Callable[[str], float],
         disarm_restores_intended_mode=True, offboard_loss_timeout_s=p("COM_OF_LOSS_T"),
         offboard_loss_action=FailsafeAction.from_com_obl_rc_act(int(p("COM_OBL_RC_ACT"))),
         rtl_return_altitude_m=p("RTL_RETURN_ALT"), rtl_land_max_speed_mps=math.inf,
+        rtl_land_radius_m=p("NAV_ACC_RAD"),
         rtl_descend_altitude_m=p("RTL_DESCEND_ALT"), rtl_cone_half_angle_deg=p("RTL_CONE_ANG"),
         auto_up_speed_mps=p("MPC_Z_V_AUTO_UP"), auto_down_speed_mps=p("MPC_Z_V_AUTO_DN"),
+        auto_approach_gain_per_s=AUTO_APPROACH_GAIN_PER_S,
         mission_vertical_acceptance_m=p("NAV_MC_ALT_RAD"),
         mission_acceptance_radius_m=p("NAV_ACC_RAD"), mission_end_brake=True,
         gps_loss_failsafe_delay_s=p("COM_POS_FS_DELAY"), gps_loss_action=FailsafeAction.LAND,
