@@ -23,10 +23,10 @@ from eaglemission.types import FlightMode
 
 try:  # tests/ is not a package
     from emulator_support import read_tlog, scenario
-    from test_px4_recorded_facts import M, Gcs, make_emulator
+    from test_px4_recorded_facts import Gcs, M, make_emulator
 except ImportError:  # pragma: no cover
     from .emulator_support import read_tlog, scenario  # type: ignore[no-redef]
-    from .test_px4_recorded_facts import M, Gcs, make_emulator  # type: ignore[no-redef]
+    from .test_px4_recorded_facts import Gcs, M, make_emulator  # type: ignore[no-redef]
 
 RUNS = {"h1": (3, 0, False), "h2": (4, 3, False), "h3": (3, 0, True)}
 """run -> DO_SET_MODE (main, sub), centred MANUAL_CONTROL streamed."""
@@ -95,8 +95,15 @@ def emulator_takeover(main: int, sub: int, manual: bool) -> dict[str, Any]:
                  and -emu.snapshot().true_position_ned_m[2] > 2.7, 30.0, "takeoff to 3 m")
         e, hl = emu.snapshot().estimate_position_ned_m, emu.home_local
         gcs.setpoint = (e[0] + hl[0], e[1] + hl[1], e[2] + hl[2])
-        time.sleep(0.2 / speedup)
-        gcs.command(M.MAV_CMD_DO_SET_MODE, 129, 6, 0)
+        # the stream first (PX4 refuses OFFBOARD without it; a loaded machine delays it)
+        gcs.wait(lambda: emu.snapshot().offboard_setpoint is not None, 5.0, "setpoints arriving")
+        for _ in range(5):  # a client retries a refused start (stream late on a loaded machine)
+            gcs.command(M.MAV_CMD_DO_SET_MODE, 129, 6, 0)
+            deadline = time.monotonic() + 1.0
+            while emu.snapshot().mode != FlightMode.OFFBOARD and time.monotonic() < deadline:
+                time.sleep(0.01)
+            if emu.snapshot().mode == FlightMode.OFFBOARD:
+                break
         gcs.wait(lambda: emu.snapshot().mode == FlightMode.OFFBOARD, 5.0, "OFFBOARD")
         gcs.wait_sim(emu.snapshot().sim_time_s + 5.0)
         other = SecondGcs(gcs, manual)
