@@ -100,7 +100,7 @@ class AutopilotParams:
     target) is slower than its offboard loop: recorded f1 / f2 climbed 4.3 -> 10 / 8 m at
     1.15 / 0.82 m/s mean (10-90 %, max 2.09 / 1.42 m/s, never MPC_Z_V_AUTO_UP's 3 m/s) and
     returned 10 m at up to 3.1 m/s (not MPC_XY_CRUISE's 5); the estimate's error to the target
-    shrank ~0.5-0.7 /s. emu 0.55 (fitted to f1 / f2), sim None."""
+    shrank ~0.5-0.7 /s. emu 0.45 (fitted to f1 / f2), sim None."""
     rtl_land_max_speed_mps: float = 0.5  # RTL lands near home below this speed; emu inf
     rtl_land_radius_m: float = 1.0  # ... this close; emu NAV_ACC_RAD (recorded f1 / f2: "RTL:
     # land at destination" 1.89 / 1.92 m before home, still at 1.3 m/s)
