@@ -447,11 +447,12 @@ class Autopilot:
                 dyn.command_position(Setpoint(0.0, 0.0, -self._rtl_alt_m, yaw), immediate=True,
                                      **self.params.auto_vertical_speeds(rtl_return=True))
         elif self.rtl_phase == "return":
-            if (math.hypot(e[0], e[1]) <= 1.0
+            if (math.hypot(e[0], e[1]) <= self.params.rtl_land_radius_m
                     and math.hypot(dyn.vn, dyn.ve) < self.params.rtl_land_max_speed_mps):
                 self.rtl_phase = "land"
                 self.status("RTL: land at destination")
-                dyn.command_land(immediate=True)
+                dyn.command_land(at_ne_m=(0.0, 0.0), immediate=True)  # at home (PX4: its
+                # land waypoint; recorded f1 / f2: touchdown 0.31 / 0.37 m from it)
 
 
 def apply_failsafe(ap: Autopilot, reason: str, action: FailsafeAction) -> None:

@@ -94,7 +94,16 @@ class AutopilotParams:
     rtl_cone_half_angle_deg: float = 0.0  # [RTL_CONE_ANG] 0: no cone (sim); emu 45
     auto_up_speed_mps: float | None = None  # [MPC_Z_V_AUTO_UP] RTL climb; None: the model's
     auto_down_speed_mps: float | None = None  # [MPC_Z_V_AUTO_DN] RTL descent to land
-    rtl_land_max_speed_mps: float = 0.5  # RTL lands within 1 m of home below this speed; emu inf
+    auto_approach_gain_per_s: float | None = None
+    """Position gain of RTL's climb and return legs (None: the dynamics' own, as an offboard
+    setpoint). PX4's auto trajectory (jerk- and acceleration-limited, then slowing toward the
+    target) is slower than its offboard loop: recorded f1 / f2 climbed 4.3 -> 10 / 8 m at
+    1.15 / 0.82 m/s mean (10-90 %, max 2.09 / 1.42 m/s, never MPC_Z_V_AUTO_UP's 3 m/s) and
+    returned 10 m at up to 3.1 m/s (not MPC_XY_CRUISE's 5); the estimate's error to the target
+    shrank ~0.5-0.7 /s. emu 0.45 (fitted to f1 / f2), sim None."""
+    rtl_land_max_speed_mps: float = 0.5  # RTL lands near home below this speed; emu inf
+    rtl_land_radius_m: float = 1.0  # ... this close; emu NAV_ACC_RAD (recorded f1 / f2: "RTL:
+    # land at destination" 1.89 / 1.92 m before home, still at 1.3 m/s)
     mission_vertical_acceptance_m: float = 0.8  # [NAV_MC_ALT_RAD]
     mission_acceptance_radius_m: float = 2.0  # [NAV_ACC_RAD] items without their own
     mission_end_brake: bool = False  # emu True: brake where the last item was reached
@@ -116,7 +125,8 @@ class AutopilotParams:
         """The climb / descent limits of autopilot-flown moves (RTL) for ``command_position``
         (``rtl_return``: with the cruise speed of the return leg)."""
         out = {"max_up_speed_mps": self.auto_up_speed_mps,
-               "max_down_speed_mps": self.auto_down_speed_mps}
+               "max_down_speed_mps": self.auto_down_speed_mps,
+               "gain_per_s": self.auto_approach_gain_per_s}
         return out | {"max_speed_mps": self.cruise_speed_mps} if rtl_return else out
 
 

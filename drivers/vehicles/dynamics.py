@@ -158,6 +158,8 @@ class _Command:
     max_speed_mps: float | None = None
     max_up_speed_mps: float | None = None
     max_down_speed_mps: float | None = None
+    gain_per_s: float | None = None
+    at_ne: tuple[float, float] | None = None  # land: where (None: the stopping point)
 
 
 @dataclass(frozen=True, slots=True)
@@ -255,6 +257,7 @@ class MulticopterDynamics:
         self._max_speed = p.cruise_speed_mps
         self._max_up = p.max_up_speed_mps
         self._max_down = p.max_down_speed_mps
+        self._kp = p.position_gain_per_s
         self._dn, self._de = 0.0, 0.0  # disturbance (wind) estimate, m/s^2
         self._pending: deque[tuple[int, _Command]] = deque()
         # cached constants
@@ -324,12 +327,15 @@ class MulticopterDynamics:
         max_speed_mps: float | None = None,
         max_up_speed_mps: float | None = None,
         max_down_speed_mps: float | None = None,
+        gain_per_s: float | None = None,
         immediate: bool = False,
     ) -> None:
         """Fly to a NED position (estimate frame) and yaw. Speeds default to the cruise speed
-        and the vertical limits; they are always capped by the params' limits."""
+        and the vertical limits; they are always capped by the params' limits. ``gain_per_s``
+        replaces ``position_gain_per_s`` for this move (an autopilot-flown approach, slower
+        than an offboard setpoint: :data:`~.autopilot_params.AutopilotParams`)."""
         self._issue(_Command("position", setpoint.position_ned_m, setpoint.yaw_deg, max_speed_mps,
-                             max_up_speed_mps, max_down_speed_mps), immediate)
+                             max_up_speed_mps, max_down_speed_mps, gain_per_s), immediate)
 
     def command_velocity(self, velocity_ned_mps: XYZ, yaw_deg: float | None = None, *,
                          immediate: bool = False) -> None:
@@ -341,9 +347,11 @@ class MulticopterDynamics:
         """Brake and hold the stopping point (PX4 Hold/Loiter)."""
         self._issue(_Command("hold"), immediate)
 
-    def command_land(self, *, immediate: bool = False) -> None:
-        """Hold the horizontal stopping point and descend at ``land_speed_mps``."""
-        self._issue(_Command("land"), immediate)
+    def command_land(self, *, at_ne_m: tuple[float, float] | None = None,
+                     immediate: bool = False) -> None:
+        """Hold the horizontal stopping point (or fly to ``at_ne_m``, estimate frame: a
+        landing at a destination) and descend at ``land_speed_mps``."""
+        self._issue(_Command("land", at_ne=at_ne_m), immediate)
 
     def set_motors(self, on: bool) -> None:
         """Arm (motors spinning, controller active) or disarm (motors off: idle on the ground,
@@ -374,6 +382,7 @@ class MulticopterDynamics:
             self._max_speed = min(cmd.max_speed_mps or p.cruise_speed_mps, p.max_horizontal_speed_mps)
             self._max_up = min(cmd.max_up_speed_mps or p.max_up_speed_mps, p.max_up_speed_mps)
             self._max_down = min(cmd.max_down_speed_mps or p.max_down_speed_mps, p.max_down_speed_mps)
+            self._kp = cmd.gain_per_s or p.position_gain_per_s
         elif cmd.kind == "velocity":
             self.mode = "velocity"
             self._vel_cmd = cmd.target
@@ -385,11 +394,14 @@ class MulticopterDynamics:
             sn, se, _ = stopping_point(e, (self.vn, self.ve, self.vd), a)
             av = p.max_vertical_accel_mps2 * p.brake_accel_fraction
             sd = e[2] + self.vd * abs(self.vd) / (2.0 * av)
+            if cmd.at_ne is not None:
+                sn, se = cmd.at_ne
             self._sp = (sn, se, min(sd, 0.0) if cmd.kind == "hold" else sd)
             self._yaw_sp = self.yaw_deg
             self._max_speed = p.cruise_speed_mps
             self._max_up = p.max_up_speed_mps
             self._max_down = p.max_down_speed_mps
+            self._kp = p.position_gain_per_s
             self.mode = "position" if cmd.kind == "hold" else "land"
 
     # -- integration -----------------------------------------------------------------------------
@@ -449,7 +461,7 @@ class MulticopterDynamics:
                 vn_d, ve_d = vn_d * vmax / h, ve_d * vmax / h
             vd_d = max(-c.v_up_max, min(c.v_down_max, vd_d))
         else:
-            kp = c.kp
+            kp = self._kp
             sp = self._sp
             en = sp[0] - (self.pn + err[0])
             ee = sp[1] - (self.pe + err[1])

@@ -17,6 +17,7 @@ from eaglemission.drivers.vehicles.emulator_config import (
     MSG_NAMES,
     PX4_ONBOARD_RATES_HZ,
 )
+from eaglemission.drivers.vehicles.emulator_manual import MANUAL_MODE_NAMES, ManualControlInput
 from eaglemission.drivers.vehicles.mavlink_dialect import M, as_int
 
 from eaglemission.geometry import geodetic_to_ned
@@ -37,6 +38,8 @@ class CommandHandlers:
     def __init__(self, emulator: Px4Emulator) -> None:
         self._e = emulator
         self.deny: dict[int, int] = {}  # command id -> MAV_RESULT for the next one
+        self.manual = ManualControlInput()
+        self._first_set_mode_ack: int | None = None  # PX4's first of its two DO_SET_MODE acks
 
     def on_command_long(self, msg: Any) -> None:
         self._command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4,
@@ -64,9 +67,12 @@ class CommandHandlers:
         except Exception:  # PX4 answers every command: a bug here must not look like a TIMEOUT
             log.exception("emulator: command %d failed", cmd)
             result = M.MAV_RESULT_FAILED
-        self._ack(msg, cmd, result)
+        first, self._first_set_mode_ack = self._first_set_mode_ack, None
         if cmd == M.MAV_CMD_DO_SET_MODE and self._e.config.double_set_mode_ack:
-            self._ack(msg, cmd, result)  # PX4 v1.16 acknowledges DO_SET_MODE twice
+            # PX4 v1.16 acknowledges DO_SET_MODE twice: the mode request is ACCEPTED, then
+            # Commander's answer (recorded h1: ACCEPTED +3.7 ms, TEMPORARILY_REJECTED +7.7 ms)
+            self._ack(msg, cmd, result if first is None else first)
+        self._ack(msg, cmd, result)
         if result == M.MAV_RESULT_ACCEPTED and cmd == M.MAV_CMD_REQUEST_MESSAGE:
             self._e.send(MSG_NAMES.get(as_int(p[0], -1), ""))
 
@@ -134,10 +140,19 @@ class CommandHandlers:
             return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
         if mode in (FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH) and not ap.armed:
             return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
+        if mode in MANUAL_MODES and not self.manual.present(e.sim_time_s):
+            # PX4 (COM_RC_IN_MODE 1, recorded h1): no MANUAL_CONTROL, no manual mode; the
+            # vehicle stays in its mode (OFFBOARD kept following the setpoints)
+            e.statustext(f"Switching to {MANUAL_MODE_NAMES[mode]} is currently not available", CRITICAL)
+            self._first_set_mode_ack = int(M.MAV_RESULT_ACCEPTED)
+            return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
         if mode == FlightMode.HOLD:
             ap.hold()
         elif mode in MANUAL_MODES:
-            ap.enter_manual(mode, "command")
+            # the sticks decide (recorded h3: centred MANUAL_CONTROL, Position holds)
+            ap.enter_manual(mode, "pilot")
+            self.manual.apply(ap, e.param("MPC_VEL_MANUAL"), e.param("MPC_Z_VEL_MAX_UP"),
+                              e.param("MPC_Z_VEL_MAX_DN"), force=True)
         elif mode == FlightMode.RETURN_TO_LAUNCH:
             ap.return_to_launch()
         elif mode == FlightMode.MISSION:
@@ -208,6 +223,14 @@ class CommandHandlers:
 
     def set_home(self, msg: Any, p: list[float], frame: int | None) -> int:
         return int(M.MAV_RESULT_ACCEPTED)  # home stays where the world is: accepted, ignored
+
+    def on_manual_control(self, msg: Any) -> None:
+        """MANUAL_CONTROL (a GCS's virtual sticks): what Position / Altitude / Manual follow."""
+        e = self._e
+        self.manual.on_message(msg, e.sim_time_s)
+        if e.autopilot.mode in MANUAL_MODES and e.autopilot.manual_input:
+            self.manual.apply(e.autopilot, e.param("MPC_VEL_MANUAL"), e.param("MPC_Z_VEL_MAX_UP"),
+                              e.param("MPC_Z_VEL_MAX_DN"))
 
     def on_set_position_target_local_ned(self, msg: Any) -> None:
         """An offboard setpoint (position or velocity, local NED relative to the EKF origin)."""

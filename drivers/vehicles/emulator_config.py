@@ -44,7 +44,13 @@ MSG_NAMES: dict[int, str] = {v: k for k, v in MSG_IDS.items()}
 DISTANCE_NO_RETURN_CM = 65535
 """UINT16_MAX: what PX4 SIH sends beyond the maximum range ("lightware lw20 behaviour"; also
 recorded after the landing of scenario a)."""
+PX4_SIH_RANGEFINDER = RangefinderParams(enabled=True, noise_std_m=0.0, min_range_m=0.0,
+                                        max_range_m=100.0)
+"""PX4 SIH's downward distance sensor as recorded (g): min_distance 0, max_distance 10000 cm,
+no noise (it matches the truth ``height / cos(tilt)`` within 0.7 cm RMS)."""
 DISTANCE_SENSOR_MAX_HZ = 50.0
+AUTO_APPROACH_GAIN_PER_S = 0.45
+"""RTL's climb / return gain fitted to recorded f1 / f2 (AutopilotParams.auto_approach_gain_per_s)."""
 """PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
 
 
@@ -56,7 +62,9 @@ def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderP
     (PX4 assigns ``metres * 1e2f`` to a uint16); beyond the maximum range or with the beam at
     the horizon, :data:`DISTANCE_NO_RETURN_CM`; below the minimum (on the ground) the geometric
     range, which is outside ``[min, max]`` -- PX4 never withholds a reading, the receiver checks
-    the range."""
+    the range. A body origin below the ground plane gives a negative range, which wraps around
+    in the uint16 (recorded g, fact 29: 0 at the contact, then 65523-65535 cm while SIH let the
+    vehicle sink 0.01-0.14 m)."""
     min_cm = int(round(params.min_range_m * 100.0))
     max_cm = int(round(params.max_range_m * 100.0))
     r = rangefinder_reading_m(true_down_m, cos_tilt, params, noise)
@@ -64,7 +72,10 @@ def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderP
         return min(DISTANCE_NO_RETURN_CM - 1, max(0, int(r * 100.0))), min_cm, max_cm
     if cos_tilt <= 0.1 or -true_down_m / cos_tilt > params.max_range_m:
         return DISTANCE_NO_RETURN_CM, min_cm, max_cm
-    return max(0, min(min_cm - 1, int(-true_down_m / cos_tilt * 100.0))), min_cm, max_cm
+    below_cm = int(-true_down_m / cos_tilt * 100.0)  # truncated toward 0, as C's float -> int
+    if below_cm < 0:
+        return below_cm % (DISTANCE_NO_RETURN_CM + 1), min_cm, max_cm
+    return max(0, min(min_cm - 1, below_cm)), min_cm, max_cm
 
 
 class EmulatorConfig(BaseModel):
@@ -158,8 +169,10 @@ def emulator_autopilot_params(cfg: EmulatorConfig, p: Callable[[str], float],
         disarm_restores_intended_mode=True, offboard_loss_timeout_s=p("COM_OF_LOSS_T"),
         offboard_loss_action=FailsafeAction.from_com_obl_rc_act(int(p("COM_OBL_RC_ACT"))),
         rtl_return_altitude_m=p("RTL_RETURN_ALT"), rtl_land_max_speed_mps=math.inf,
+        rtl_land_radius_m=p("NAV_ACC_RAD"),
         rtl_descend_altitude_m=p("RTL_DESCEND_ALT"), rtl_cone_half_angle_deg=p("RTL_CONE_ANG"),
         auto_up_speed_mps=p("MPC_Z_V_AUTO_UP"), auto_down_speed_mps=p("MPC_Z_V_AUTO_DN"),
+        auto_approach_gain_per_s=AUTO_APPROACH_GAIN_PER_S,
         mission_vertical_acceptance_m=p("NAV_MC_ALT_RAD"),
         mission_acceptance_radius_m=p("NAV_ACC_RAD"), mission_end_brake=True,
         gps_loss_failsafe_delay_s=p("COM_POS_FS_DELAY"), gps_loss_action=FailsafeAction.LAND,

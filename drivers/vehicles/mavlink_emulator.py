@@ -201,6 +201,7 @@ class Px4Emulator:
             "MISSION_CLEAR_ALL": self.missions.on_mission_clear_all,
             "MISSION_SET_CURRENT": self.missions.on_mission_set_current,
             "SET_POSITION_TARGET_LOCAL_NED": self.commands.on_set_position_target_local_ned,
+            "MANUAL_CONTROL": self.commands.on_manual_control,
         }
         self._t = 0.0
         self._last_wall = 0.0

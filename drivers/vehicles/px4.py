@@ -136,6 +136,7 @@ DEFAULT_PARAMS: dict[str, tuple[float, int]] = {
     "COM_POS_FS_DELAY": (1.0, PARAM_REAL32),
     "MPC_XY_CRUISE": (5.0, PARAM_REAL32),
     "MPC_XY_VEL_MAX": (12.0, PARAM_REAL32),
+    "MPC_VEL_MANUAL": (10.0, PARAM_REAL32),  # Position mode, sticks at full deflection
     "MPC_Z_VEL_MAX_UP": (3.0, PARAM_REAL32),
     "MPC_Z_VEL_MAX_DN": (1.5, PARAM_REAL32),
     "MPC_Z_V_AUTO_UP": (3.0, PARAM_REAL32),  # autopilot-flown climbs (RTL, missions)

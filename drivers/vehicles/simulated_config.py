@@ -44,7 +44,12 @@ class SimulatedVehicleConfig(BaseModel):
     offboard_loss_action: Literal["hold", "land", "position_no_rc"] = "hold"  # [COM_OBL_RC_ACT]
     offboard_loss_land_after_s: _Pos | None = None  # hold, then land after this long
     position_no_rc_descent_mps: _Pos = 0.65  # recorded PX4: POSCTL without RC descends
-    rtl_return_altitude_m: _Pos = 10.0  # [RTL_RETURN_ALT] (PX4 default 60 m)
+    # RTL heights as PX4 v1.16's multicopter airframes set them (sihsim_quadx, recorded d-i:
+    # 30 / 10 m / 45 deg; the parameters' own defaults, 60 / 30 m, are not what a quad flies):
+    # near home (within 10 m) the return is at RTL_DESCEND_ALT, further out inside the cone
+    rtl_return_altitude_m: _Pos = 30.0  # [RTL_RETURN_ALT]
+    rtl_descend_altitude_m: _NonNeg = 10.0  # [RTL_DESCEND_ALT]
+    rtl_cone_half_angle_deg: Annotated[float, Field(ge=0, lt=90)] = 45.0  # [RTL_CONE_ANG] 0: none
     mission_vertical_acceptance_m: _Pos = 0.8  # [NAV_MC_ALT_RAD]
     link_loss_timeout_s: _Pos = 10.0  # [COM_DL_LOSS_T]
     link_loss_action: Literal["none", "hold", "return", "land"] = "none"  # [NAV_DLL_ACT]
@@ -75,6 +80,8 @@ def autopilot_params(cfg: SimulatedVehicleConfig) -> AutopilotParams:
         offboard_loss_land_after_s=cfg.offboard_loss_land_after_s,
         position_no_rc_descent_mps=cfg.position_no_rc_descent_mps,
         rtl_return_altitude_m=cfg.rtl_return_altitude_m,
+        rtl_descend_altitude_m=cfg.rtl_descend_altitude_m,
+        rtl_cone_half_angle_deg=cfg.rtl_cone_half_angle_deg,
         mission_vertical_acceptance_m=cfg.mission_vertical_acceptance_m,
         gps_loss_failsafe_delay_s=cfg.gps_loss_failsafe_delay_s,
         gps_loss_action=FailsafeAction(cfg.gps_loss_action),
@@ -88,6 +95,8 @@ _OBL = {"position_no_rc": 0.0, "land": 4.0, "hold": 5.0}
 _DLL = {"none": 0.0, "hold": 1.0, "return": 2.0, "land": 3.0}
 PARAMETERS: dict[str, tuple[Callable[[SimulatedVehicleConfig], float], str | None]] = {
     "RTL_RETURN_ALT": (lambda c: c.rtl_return_altitude_m, "rtl_return_altitude_m"),
+    "RTL_DESCEND_ALT": (lambda c: c.rtl_descend_altitude_m, "rtl_descend_altitude_m"),
+    "RTL_CONE_ANG": (lambda c: c.rtl_cone_half_angle_deg, None),
     "COM_OF_LOSS_T": (lambda c: c.offboard_loss_timeout_s, "offboard_loss_timeout_s"),
     "COM_DISARM_LAND": (lambda c: c.auto_disarm_after_land_s, "auto_disarm_after_land_s"),
     "COM_DL_LOSS_T": (lambda c: c.link_loss_timeout_s, "link_loss_timeout_s"),
