@@ -16,8 +16,8 @@ from eaglemission.missions.log import MissionLog
 from eaglemission.missions.tracking import TargetTracking
 
 from eaglemission.clock import Clock
-from eaglemission.telemetry_time import CLOCK_JUMP, TelemetryTimeCheck
 from eaglemission.interfaces import Vehicle
+from eaglemission.telemetry_time import CLOCK_JUMP, TelemetryTimeCheck
 from eaglemission.types import VehicleState
 
 PERIOD_S = 0.02

@@ -9,8 +9,8 @@ in whole internal steps; the autopilot runs after every step, then the logs.
 from __future__ import annotations
 
 import threading
-from dataclasses import replace
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any, Self
 
 import numpy as np

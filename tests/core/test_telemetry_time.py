@@ -6,9 +6,9 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
 
 from eaglemission.clock import ManualClock
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
 from eaglemission.telemetry_time import (
     CLOCK_JUMP,
     DUPLICATE,
