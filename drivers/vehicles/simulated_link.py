@@ -84,6 +84,7 @@ class LinkTiming:
             previous, self._sent = self._sent, src
             receipt = src.timestamp_ns + (self._delay_ns if delayed else 0)
             self._shown = replace(src, timestamp_ns=min(max(receipt, src.timestamp_ns), now_ns))
+            self._pending = None  # a copy or late message not read yet came before this one
             if now_ns < self._duplicate_until_ns:
                 self._pending = src
             elif now_ns < self._reorder_until_ns and previous is not None:

@@ -119,3 +119,20 @@ def test_a_link_delay_ages_the_telemetry_and_the_queue_keeps_its_order() -> None
     assert age_during == pytest.approx(0.3, abs=0.03)
     assert age_after < 0.03
     assert in_order
+
+
+def test_duplicates_show_no_out_of_order_sample_at_the_window_s_end() -> None:
+    async def go() -> set[str]:
+        v, clock = await _vehicle()
+        c = TelemetryTimeCheck()
+        c.check(v.state())
+        v.inject_link_duplicate(0.5)
+        out = set()
+        for step_s, n in ((0.01, 49), (0.02, 1), (0.001, 5), (0.02, 20)):
+            # twice per sample in the window, then a copy left unread at its end
+            for _ in range(n):
+                clock.advance(step_s)
+                out.add(c.check(v.state()).problem)
+        return out - {""}
+
+    assert asyncio.run(go()) == {DUPLICATE}
