@@ -209,6 +209,9 @@ class SafetyConfig(StrictModel):
     """A range that disagrees with the altitude estimate by more than this is not trusted (the
     band falls back to the estimate and the event is logged)."""
     link_loss_timeout_s: PosFloat = 1.5
+    max_telemetry_age_s: Annotated[float, Field(gt=0, le=10)] = 0.5
+    """Telemetry older than this (by the autopilot's timestamps: a delayed link) counts as
+    lost: after ``link_loss_timeout_s`` more the link-loss failsafe acts."""
     link_loss_action: SafeAction = "return"
     gps_loss_action: SafeAction = "land"
     low_battery_fraction: Fraction = 0.2

@@ -34,7 +34,10 @@ DETECTOR_KINDS = frozenset({"detector_exception", "nan_map", "slow_frame"})
 ESTIMATOR_KINDS = frozenset({"degenerate_corners", "pose_flip"})
 VEHICLE_METHODS = {"link_loss": "inject_link_loss", "gps_loss": "inject_gps_loss",
                    "battery_drain": "set_battery_fraction", "pilot_mode": "pilot_take_control",
-                   "command_denied": "deny_next_command", "wind_gust": "inject_wind_gust"}
+                   "command_denied": "deny_next_command", "wind_gust": "inject_wind_gust",
+                   "link_delay": "inject_link_delay", "link_duplicate": "inject_link_duplicate",
+                   "link_reorder": "inject_link_reorder",
+                   "autopilot_clock_jump": "inject_autopilot_clock_jump"}
 POLL_S = 0.02
 
 
@@ -49,9 +52,15 @@ class FaultInjector:
 
     def _vehicle(self, spec: FaultSpec) -> dict[str, Any]:
         fn = getattr(self.driver, VEHICLE_METHODS[spec.kind])
-        if spec.kind in ("link_loss", "gps_loss"):
+        if spec.kind in ("link_loss", "gps_loss", "link_duplicate", "link_reorder"):
             fn(spec.duration_s)
             return {}
+        if spec.kind == "link_delay":
+            fn(spec.value, spec.duration_s)
+            return {"delay_s": spec.value}
+        if spec.kind == "autopilot_clock_jump":
+            fn(spec.value)
+            return {"jump_s": spec.value}
         if spec.kind == "battery_drain":
             fn(spec.value)
             return {"fraction": spec.value}

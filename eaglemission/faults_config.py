@@ -22,6 +22,7 @@ FaultKind = Literal[
     "detector_exception", "nan_map", "slow_frame", "degenerate_corners", "pose_flip",
     # vehicle link and autopilot (drivers/vehicles/simulated_faults.py)
     "link_loss", "command_denied", "pilot_mode", "gps_loss", "battery_drain",
+    "link_delay", "link_duplicate", "link_reorder", "autopilot_clock_jump",
     # world (the vehicle's dynamics)
     "wind_gust",
 ]
@@ -36,6 +37,8 @@ SIZES: dict[str, tuple[str, float, float, float]] = {
     "camera_clock_jump": ("jump of the camera's frame stamps (s)", -3600.0, 3600.0, 5.0),
     "slow_frame": ("extra processing time per frame (s)", 0.0, 10.0, 0.8),
     "battery_drain": ("battery fraction left after the drain", -1e-9, 1.0, 0.1),
+    "link_delay": ("delay of telemetry and command answers (s)", 0.0, 10.0, 0.2),
+    "autopilot_clock_jump": ("jump of the autopilot's timestamps (s)", -3600.0, 3600.0, 10.0),
     "wind_gust": ("gust speed as a fraction of the vehicle's horizontal speed limit", 0.0,
                   1.0, 0.3),
 }
@@ -57,7 +60,8 @@ class FaultSpec(BaseModel):
     duration_s: float = Field(1.0, gt=0, le=3600,
                               description="how long the fault lasts (s); one frame for "
                                           "corrupted/truncated frames; device loss, clock "
-                                          "jumps and a battery drain last to the end")
+                                          "jumps (camera and autopilot) and a battery "
+                                          "drain last to the end")
     size: float | None = Field(None, description="the fault's size (unit per kind, "
                                                  "docs/faults.md); None: the kind's default")
     camera: Literal["wide", "narrow", "both"] = Field(

@@ -44,6 +44,7 @@ _CAM = "camera plugin (drivers/cameras/faulty.py)"
 _DET = "detector (eaglemission/fault_wrappers.py)"
 _EST = "estimators (eaglemission/fault_wrappers.py)"
 _VEH = "simulated vehicle's link / autopilot (drivers/vehicles/simulated_faults.py)"
+_LINK = "simulated vehicle's telemetry link (drivers/vehicles/simulated_link.py)"
 _APPROACH = ("COARSE_APPROACH", "FINE_APPROACH")
 _FLYING = ("CRUISE", "COARSE_APPROACH", "FINE_APPROACH")
 
@@ -86,6 +87,19 @@ OUTCOMES: dict[str, Outcome] = {
                         (20.0, 40.0)),
     "battery_drain": Outcome(_VEH, "safety.low_battery_action", ("battery low",), _FLYING,
                              (0.5, 2.0), (1.0, 1.0), (0.0, 0.15)),
+    # below safety.max_telemetry_age_s a delay is flown through (reported as late telemetry);
+    # beyond it the telemetry counts as lost: FAILSAFE with safety.link_loss_action after
+    # safety.link_loss_timeout_s (tests/missions/test_link_faults.py, docs/faults.md)
+    "link_delay": Outcome(_LINK, COMPLETE, ("telemetry_late",), _FLYING, (0.5, 2.0),
+                          (1.0, 3.0), (0.15, 0.4)),
+    "link_duplicate": Outcome(_LINK, COMPLETE, ("telemetry_duplicate",), _FLYING, (0.5, 2.0),
+                              (1.0, 3.0)),
+    "link_reorder": Outcome(_LINK, COMPLETE, ("telemetry_out_of_order",), _FLYING,
+                            (0.5, 2.0), (1.0, 3.0)),
+    # the mission's times are the host's receipt stamps: a jump of the autopilot's clock is
+    # re-anchored, nothing is commanded on the autopilot's time base
+    "autopilot_clock_jump": Outcome(_LINK, COMPLETE, ("autopilot_clock_jump",), _FLYING,
+                                    (0.5, 2.0), (1.0, 1.0), (5.0, 60.0)),
     "wind_gust": Outcome("world: the simulated vehicle's wind (drivers/vehicles/dynamics.py)",
                          COMPLETE, (), _APPROACH, (0.2, 1.0), (1.0, 3.0), (0.05, 0.3)),
 }

@@ -91,6 +91,12 @@ class TelemetryHistory:
         with self._lock:
             return self._states[-1] if self._states else None
 
+    def latest_at_or_before(self, timestamp_ns: int) -> VehicleState | None:
+        """The newest sample stamped at or before ``timestamp_ns`` (None: none that old)."""
+        with self._lock:
+            i = bisect.bisect_right(list(self._times), timestamp_ns)
+            return self._states[i - 1] if i > 0 else None
+
     def state_at(self, timestamp_ns: int) -> VehicleState | None:
         with self._lock:
             if not self._states:

@@ -264,6 +264,9 @@ class VehicleState:
     # downward distance sensor (PX4 DISTANCE_SENSOR, MAVSDK Telemetry.distance_sensor): range
     # along the body's down axis to what lies below, metres; None without a sensor or out of range
     distance_to_ground_m: float | None = None
+    # the autopilot's own stamp of the sample (MAVLink time_boot_ms / time_usec, ns since its
+    # boot); None when the vehicle does not report it (eaglemission.telemetry_time checks it)
+    autopilot_time_ns: int | None = None
 
     @property
     def yaw_deg(self) -> float:

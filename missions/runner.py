@@ -147,7 +147,8 @@ class MissionRunner:
         self.telemetry = TelemetryWatch(self.vehicle, clock, mission_log, self.track,
                                         policy=lambda: self.policy,
                                         state_name=lambda: self.machine.state.value,
-                                        on_telemetry=on_telemetry)
+                                        on_telemetry=on_telemetry,
+                                        max_age_s=self.cfg.safety.max_telemetry_age_s)
         # results
         self.latencies_ms: list[float] = []
         self.perception_ms: list[float] = []
@@ -289,7 +290,7 @@ class MissionRunner:
                                       meas.frame.seq, None if det is None else det.center_px))
         if det is not None:
             self._detected[cam_id] += 1
-        applied = self.track.apply(meas, self.policy, self.vehicle.state(), self.clock.now_ns(),
+        applied = self.track.apply(meas, self.policy, self.telemetry.current(), self.clock.now_ns(),
                                    self._t_s())
         if applied.fresh:
             self._fresh = (wall, 0.0)
@@ -313,7 +314,7 @@ class MissionRunner:
         now = self.clock.now_ns()
         st = self.machine.state
         pol = self.policy
-        vs = self.vehicle.state()
+        vs = self.telemetry.current()
         filt = self.track.filter.state(now)
         timeout = (getattr(self.p.timeouts, pol.timeout_field) if pol.timeout_field
                    else math.inf)
@@ -389,7 +390,7 @@ class MissionRunner:
             dt = max(0.0, (now - last_ns) * 1e-9)
             last_ns = now
             pol = self.policy
-            vs = self.vehicle.state()
+            vs = self.telemetry.current()
             if not self.actuator.offboard or not pol.offboard or not pose_finite(vs):
                 continue
             filt = self.track.filter.state(now)

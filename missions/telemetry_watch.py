@@ -1,5 +1,11 @@
 """The mission's telemetry task: the telemetry rate, the link, the rangefinder's plane, the
-vehicle's events, all logged (a telemetry record every 0.2 s)."""
+vehicle's events, all logged (a telemetry record every 0.2 s).
+
+Every sample the mission uses passes :meth:`TelemetryWatch.current`: the time-base checks of
+:mod:`eaglemission.telemetry_time` refuse duplicated and out-of-order samples (the mission goes
+on with the newest good one) and re-anchor on a jump of the autopilot's clock; telemetry older
+than ``safety.max_telemetry_age_s`` counts as a lost link. Each is logged as
+``fault_detected`` (at most once a second per kind)."""
 
 from __future__ import annotations
 
@@ -11,10 +17,19 @@ from eaglemission.missions.tracking import TargetTracking
 
 from eaglemission.clock import Clock
 from eaglemission.interfaces import Vehicle
+from eaglemission.telemetry_time import CLOCK_JUMP, TelemetryTimeCheck
 from eaglemission.types import VehicleState
 
 PERIOD_S = 0.02
 LOG_EVERY_NS = 200_000_000
+LATE_S = 0.1
+"""Telemetry older than this is reported late (flown through up to max_age_s)."""
+REPORT_EVERY_NS = 1_000_000_000
+RESPONSES = {
+    "telemetry_duplicate": "ignored: the mission keeps the newest good sample",
+    "telemetry_out_of_order": "ignored: the mission keeps the newest good sample",
+    CLOCK_JUMP: "re-anchored: the mission's times are the host's receipt stamps",
+}
 
 
 class TelemetryWatch:
@@ -22,7 +37,8 @@ class TelemetryWatch:
 
     def __init__(self, vehicle: Vehicle, clock: Clock, log: MissionLog, track: TargetTracking,
                  *, policy: Callable[[], StatePolicy], state_name: Callable[[], str],
-                 on_telemetry: Callable[[VehicleState], None] | None = None) -> None:
+                 on_telemetry: Callable[[VehicleState], None] | None = None,
+                 max_age_s: float = 0.5) -> None:
         self.vehicle, self.clock, self.log, self.track = vehicle, clock, log, track
         self.policy, self.state_name, self.on_telemetry = policy, state_name, on_telemetry
         self.times: list[int] = []
@@ -30,6 +46,41 @@ class TelemetryWatch:
         self.events_seen = 0
         self.failover = ""  # the vehicle's last ``failover`` event: PX4 acted while we were cut off
         self.stopping = False
+        self.max_age_s = max_age_s
+        self.time_check = TelemetryTimeCheck()
+        self._reported_ns: dict[str, int] = {}
+
+    def _report(self, what: str, text: str, response: str, now_ns: int) -> None:
+        last = self._reported_ns.get(what)
+        if last is not None and now_ns - last < REPORT_EVERY_NS:
+            return
+        self._reported_ns[what] = now_ns
+        self.log.write("fault_detected", what=what, text=text, response=response,
+                       state=self.state_name())
+
+    def current(self) -> VehicleState:
+        """The vehicle's newest sample that passes the time-base checks."""
+        vs = self.vehicle.state()
+        verdict = self.time_check.check(vs)
+        if verdict.problem:
+            self._report(verdict.problem, verdict.text, RESPONSES[verdict.problem],
+                         self.clock.now_ns())
+        last = self.time_check.last
+        return vs if last is None else last
+
+    def _stale(self, now_ns: int) -> bool:
+        """The accepted telemetry's age judged (late: reported; stale: a lost link)."""
+        age_s = self.time_check.age_s(now_ns)
+        if age_s > self.max_age_s:
+            self._report("telemetry_stale", f"telemetry {age_s:.2f} s old (> "
+                         f"safety.max_telemetry_age_s={self.max_age_s:g})",
+                         "counted as a lost link (failsafe after safety.link_loss_timeout_s)",
+                         now_ns)
+            return True
+        if age_s > LATE_S:
+            self._report("telemetry_late", f"telemetry {age_s:.2f} s old", "flown through "
+                         f"(below safety.max_telemetry_age_s={self.max_age_s:g})", now_ns)
+        return False
 
     def rate_hz(self) -> float:
         if len(self.times) < 2:
@@ -44,11 +95,11 @@ class TelemetryWatch:
         last_log = 0
         last_range_ns = -1
         while not self.stopping:
-            vs = self.vehicle.state()
+            vs = self.current()
             now = self.clock.now_ns()
             if not self.times or vs.timestamp_ns != self.times[-1]:
                 self.times = [*self.times[-199:], vs.timestamp_ns]
-            if not vs.link_ok:
+            if self._stale(now) or not vs.link_ok:
                 if self.link_lost_since_ns is None:
                     self.link_lost_since_ns = now
             else:

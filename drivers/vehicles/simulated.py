@@ -16,7 +16,8 @@ what a MAVSDK client sees:
 
 Fault injection for tests and the sim world (:mod:`.simulated_faults`): ``inject_link_loss``,
 ``inject_gps_loss``, ``set_battery_fraction``, ``pilot_take_control``, ``deny_next_command``,
-``inject_wind_gust``.
+``inject_wind_gust``; the link's timing (:mod:`.simulated_link`): ``inject_link_delay``,
+``inject_link_duplicate``, ``inject_link_reorder``, ``inject_autopilot_clock_jump``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from eaglemission.drivers.vehicles.dynamics import (
     MulticopterDynamics,
 )
 from eaglemission.drivers.vehicles.events import (
+    EVENT_FAULT,
     EVENT_GRIPPER,
     EVENT_REFUSED,
 )
@@ -280,6 +282,38 @@ class SimulatedVehicle(SimulatedModel):
         """Add a gust of (north, east) m/s to the world's wind for ``duration_s``."""
         self.faults.inject_wind_gust(north_mps, east_mps, duration_s)
 
+    def inject_link_delay(self, delay_s: float, duration_s: float) -> None:
+        """Delay telemetry and command answers by ``delay_s`` for ``duration_s``."""
+        with self._lock:
+            dyn = self._sync()
+            self.link.inject_delay(dyn.time_ns, delay_s, duration_s)
+            self._event(EVENT_FAULT, f"link delay {delay_s:g} s for {duration_s:g} s",
+                        {"fault": "link_delay", "delay_s": delay_s, "duration_s": duration_s})
+
+    def inject_link_duplicate(self, duration_s: float) -> None:
+        """Every telemetry message arrives twice for ``duration_s``."""
+        with self._lock:
+            dyn = self._sync()
+            self.link.inject_duplicate(dyn.time_ns, duration_s)
+            self._event(EVENT_FAULT, f"duplicated messages for {duration_s:g} s",
+                        {"fault": "link_duplicate", "duration_s": duration_s})
+
+    def inject_link_reorder(self, duration_s: float) -> None:
+        """Every telemetry message overtakes the one before it for ``duration_s``."""
+        with self._lock:
+            dyn = self._sync()
+            self.link.inject_reorder(dyn.time_ns, duration_s)
+            self._event(EVENT_FAULT, f"reordered messages for {duration_s:g} s",
+                        {"fault": "link_reorder", "duration_s": duration_s})
+
+    def inject_autopilot_clock_jump(self, jump_s: float) -> None:
+        """The autopilot's timestamps jump by ``jump_s`` (to the end of the flight)."""
+        with self._lock:
+            self._sync()
+            self.link.inject_clock_jump(jump_s)
+            self._event(EVENT_FAULT, f"autopilot clock jump {jump_s:g} s",
+                        {"fault": "autopilot_clock_jump", "jump_s": jump_s})
+
     async def _command(self, name: str, *params: Any) -> MulticopterDynamics:
         """Common prologue of a command: connected, link up (else TIMEOUT after the command
         timeout, like an unanswered MAVLink command), fault-injected denial."""
@@ -297,6 +331,11 @@ class SimulatedVehicle(SimulatedModel):
             raise VehicleError("TIMEOUT", origin, params or None,
                                f"no answer within {self.config.command_timeout_s:g} s: the link "
                                "to the vehicle is down")
+        delay_s = self.link.command_delay_s(dyn.time_ns)
+        if delay_s > 0:  # the answer (and the command's effect) comes later
+            await self.clock.sleep(delay_s)
+            with self._lock:
+                dyn = self._sync()
         with self._lock:
             self.faults.check_deny(name, *params)
         return dyn

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any, Self
 
 import numpy as np
@@ -35,6 +36,7 @@ from eaglemission.drivers.vehicles.simulated_config import (
     autopilot_params,
 )
 from eaglemission.drivers.vehicles.simulated_faults import SimulatedFaults
+from eaglemission.drivers.vehicles.simulated_link import LinkTiming
 from eaglemission.drivers.vehicles.simulated_state import estimated_state, true_state
 from eaglemission.drivers.vehicles.truth_log import TruthLog
 from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
@@ -123,6 +125,8 @@ class SimulatedModel:
         self._events: list[VehicleEvent] = []
         self._waypoints: tuple[Waypoint, ...] = ()
         self.faults = SimulatedFaults(self)
+        self.link = LinkTiming(self._history)
+        self._boot_ns = 0  # host time of the autopilot's boot (its timestamps count from it)
         self._tel_period_ns = int(round(1e9 / cfg.telemetry_rate_hz))
         self._next_tel_ns = 0
         self._truth = TruthLog(int(cfg.trajectory_max_s * cfg.dynamics.rate_hz))
@@ -155,6 +159,7 @@ class SimulatedModel:
                     self._status(f"Simulation starts airborne at {cfg.initial_altitude_m:g} m "
                                  "(armed, HOLD)")
                 self._next_tel_ns = now
+                self._boot_ns = now
                 self._log_truth(dyn)
                 self._sample_telemetry(dyn)
                 self._status("Ready for takeoff")
@@ -174,7 +179,7 @@ class SimulatedModel:
                 return frozen
             latest = self._history.latest()
             assert latest is not None
-            return latest
+            return self.link.deliver(latest, self.clock.now_ns())
 
     def state_at(self, timestamp_ns: int) -> VehicleState | None:
         self._require("state_at()")
@@ -286,7 +291,9 @@ class SimulatedModel:
     def _sample_telemetry(self, dyn: MulticopterDynamics) -> None:
         rf = self.config.rangefinder
         noise = self._rangefinder_noise.next() if rf.enabled else 0.0
-        self._history.append(estimated_state(dyn, self.autopilot, self.home, rf, noise))
+        state = estimated_state(dyn, self.autopilot, self.home, rf, noise)
+        self._history.append(replace(state, autopilot_time_ns=dyn.time_ns - self._boot_ns
+                                     + self.link.clock_offset_ns))
 
     def _truth_vehicle_state(self, t: int, pos: XYZ, vel: XYZ, *, attitude_q: Quat,
                              armed: bool | None = None, in_air: bool | None = None,

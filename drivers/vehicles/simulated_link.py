@@ -1,0 +1,99 @@
+"""The simulated vehicle's telemetry link in virtual time: delay, duplicated and reordered
+messages, and the autopilot's clock (the injected link faults of issue 16).
+
+Without a fault the newest telemetry sample is delivered as it is. While one is injected
+:meth:`LinkTiming.deliver` hands the reader what a real link would:
+
+* ``link_delay``: the newest sample sent at least ``delay_s`` ago (the link is a queue: never
+  one older than the last delivered), stamped on receipt ``delay_s`` after it was sent;
+  commands are answered ``delay_s`` later;
+* ``link_duplicate``: every message arrives twice (the copy with a later receipt stamp);
+* ``link_reorder``: every message overtakes the one before it (which arrives after it);
+* ``autopilot_clock_jump``: the autopilot's timestamps (``autopilot_time_ns``) jump by
+  ``jump_s`` and stay shifted (an autopilot clock reset or resync).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from eaglemission.telemetry import TelemetryHistory
+from eaglemission.types import VehicleState
+
+
+def _window_ns(duration_s: float, origin: str) -> int:
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise ValueError(f"{origin}: duration_s must be > 0, got {duration_s}")
+    return int(round(duration_s * 1e9))
+
+
+class LinkTiming:
+    """Timing faults of one simulated vehicle's link (see the module docstring)."""
+
+    def __init__(self, history: TelemetryHistory) -> None:
+        self._history = history
+        self.clock_offset_ns = 0
+        self._delay_ns = 0
+        self._delay_until_ns = -1
+        self._duplicate_until_ns = -1
+        self._reorder_until_ns = -1
+        self._sent: VehicleState | None = None  # the last sample taken off the link, as sent
+        self._shown: VehicleState | None = None  # the last message delivered (as received)
+        self._pending: VehicleState | None = None  # a copy or a late message, delivered next
+
+    # -- injection -----------------------------------------------------------------------------
+    def inject_delay(self, now_ns: int, delay_s: float, duration_s: float) -> None:
+        if not (math.isfinite(delay_s) and 0 < delay_s <= 10):
+            raise ValueError(f"inject_link_delay: delay_s must be in (0, 10], got {delay_s}")
+        self._delay_ns = int(round(delay_s * 1e9))
+        self._delay_until_ns = now_ns + _window_ns(duration_s, "inject_link_delay")
+
+    def inject_duplicate(self, now_ns: int, duration_s: float) -> None:
+        self._duplicate_until_ns = now_ns + _window_ns(duration_s, "inject_link_duplicate")
+
+    def inject_reorder(self, now_ns: int, duration_s: float) -> None:
+        self._reorder_until_ns = now_ns + _window_ns(duration_s, "inject_link_reorder")
+
+    def inject_clock_jump(self, jump_s: float) -> None:
+        if not (math.isfinite(jump_s) and jump_s != 0):
+            raise ValueError(f"inject_autopilot_clock_jump: jump_s must be finite and != 0, "
+                             f"got {jump_s}")
+        self.clock_offset_ns += int(round(jump_s * 1e9))
+
+    # -- the link ------------------------------------------------------------------------------
+    def command_delay_s(self, now_ns: int) -> float:
+        """How much later than without the fault a command is answered."""
+        return self._delay_ns * 1e-9 if now_ns < self._delay_until_ns else 0.0
+
+    def deliver(self, latest: VehicleState, now_ns: int) -> VehicleState:
+        """The message a reader gets at ``now_ns`` when ``latest`` is the newest sample sent."""
+        delayed = now_ns < self._delay_until_ns
+        if not delayed and self._pending is None and now_ns >= max(
+                self._duplicate_until_ns, self._reorder_until_ns):
+            self._sent = self._shown = latest
+            return latest
+        src = latest
+        if delayed:
+            older = self._history.latest_at_or_before(now_ns - self._delay_ns)
+            sent = self._sent
+            src = older if older is not None else (sent or latest)
+            if sent is not None and src.timestamp_ns < sent.timestamp_ns:
+                src = sent  # a queue: nothing older than what already came through
+        if self._sent is None or src.timestamp_ns != self._sent.timestamp_ns:
+            previous, self._sent = self._sent, src
+            receipt = src.timestamp_ns + (self._delay_ns if delayed else 0)
+            self._shown = replace(src, timestamp_ns=min(max(receipt, src.timestamp_ns), now_ns))
+            self._pending = None  # a copy or late message not read yet came before this one
+            if now_ns < self._duplicate_until_ns:
+                self._pending = src
+            elif now_ns < self._reorder_until_ns and previous is not None:
+                self._pending = previous
+            return self._shown
+        if self._pending is not None:
+            assert self._shown is not None
+            late = self._pending
+            self._pending = None
+            self._shown = replace(late, timestamp_ns=max(now_ns, self._shown.timestamp_ns + 1))
+        assert self._shown is not None
+        return self._shown

@@ -1,0 +1,99 @@
+"""Checks of the telemetry's time base: late, stale, duplicated, out-of-order samples and jumps
+of the autopilot's clock (issue 16).
+
+A sample carries two times: ``timestamp_ns``, stamped by the host on receipt, and
+``autopilot_time_ns``, the autopilot's own stamp (MAVLink ``time_boot_ms`` / ``time_usec``;
+None when the vehicle does not report it: then nothing is checked). The offset
+``receipt - autopilot`` is the link's latency plus the clocks' difference; its smallest value
+since the last anchoring is the anchor, so the *age* of the newest accepted sample is
+``now - autopilot_time - anchor`` (latency beyond the best seen, plus the time since receipt).
+
+* a new message (new receipt stamp) with the autopilot time of the last one: a duplicate,
+  refused;
+* an autopilot time before the last one by at most ``jump_s``: out of order, refused (the
+  mission never acts on an older sample than the one it has);
+* an autopilot time before the last one by more than ``jump_s``, or an offset below the anchor
+  by more than ``jump_s`` (the autopilot's clock ran ahead of the host's): a clock jump; the
+  anchor is reset on the new sample and it is accepted (the mission's own times are the host's
+  receipt stamps, so the re-anchored base is never used to command);
+* an age beyond ``late_s``: late (reported, tolerated); beyond ``stale_s``: stale (the caller
+  treats it as a link loss).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from eaglemission.types import VehicleState
+
+DUPLICATE = "telemetry_duplicate"
+OUT_OF_ORDER = "telemetry_out_of_order"
+CLOCK_JUMP = "autopilot_clock_jump"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What :meth:`TelemetryTimeCheck.check` made of one sample."""
+
+    accepted: bool
+    problem: str = ""
+    """'' (fine), or DUPLICATE / OUT_OF_ORDER / CLOCK_JUMP."""
+    text: str = ""
+
+
+class TelemetryTimeCheck:
+    """The time-base checks of one telemetry stream (see the module docstring)."""
+
+    def __init__(self, *, jump_s: float = 1.0) -> None:
+        if not jump_s > 0:
+            raise ValueError(f"jump_s: must be > 0, got {jump_s}")
+        self.jump_ns = int(jump_s * 1e9)
+        self.last: VehicleState | None = None
+        self._anchor_ns: int | None = None
+
+    def check(self, vs: VehicleState) -> Verdict:
+        """Judge ``vs``; an accepted sample becomes :attr:`last`. The same message read again
+        (same receipt and autopilot stamps) is accepted silently."""
+        ap = vs.autopilot_time_ns
+        last = self.last
+        if ap is None or last is None or last.autopilot_time_ns is None:
+            return self._accept(vs)
+        last_ap = last.autopilot_time_ns
+        if vs.timestamp_ns == last.timestamp_ns and ap == last_ap:
+            return Verdict(True)
+        if ap == last_ap:
+            return Verdict(False, DUPLICATE, "a second message with the autopilot time of the "
+                                             "last one: ignored")
+        if ap < last_ap:
+            back_s = (last_ap - ap) * 1e-9
+            if last_ap - ap <= self.jump_ns:
+                return Verdict(False, OUT_OF_ORDER, f"a sample {back_s * 1e3:.0f} ms older than "
+                                                    "the last one: ignored")
+            self._anchor_ns = None
+            self._accept(vs)
+            return Verdict(True, CLOCK_JUMP, f"the autopilot's time went back {back_s:.2f} s: "
+                                             "time base re-anchored")
+        offset = vs.timestamp_ns - ap
+        assert self._anchor_ns is not None
+        if self._anchor_ns - offset > self.jump_ns:
+            ahead_s = (self._anchor_ns - offset) * 1e-9
+            self._anchor_ns = None
+            self._accept(vs)
+            return Verdict(True, CLOCK_JUMP, f"the autopilot's time jumped {ahead_s:.2f} s "
+                                             "ahead of the host's: time base re-anchored")
+        return self._accept(vs)
+
+    def _accept(self, vs: VehicleState) -> Verdict:
+        self.last = vs
+        if vs.autopilot_time_ns is not None:
+            offset = vs.timestamp_ns - vs.autopilot_time_ns
+            self._anchor_ns = offset if self._anchor_ns is None else min(self._anchor_ns, offset)
+        return Verdict(True)
+
+    def age_s(self, now_ns: int) -> float:
+        """Age of the newest accepted sample at host time ``now_ns`` (0 without autopilot
+        stamps: the vehicle's own ``link_ok`` is the only judge then)."""
+        last = self.last
+        if last is None or last.autopilot_time_ns is None or self._anchor_ns is None:
+            return 0.0
+        return max(0.0, (now_ns - last.autopilot_time_ns - self._anchor_ns) * 1e-9)
