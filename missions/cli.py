@@ -46,7 +46,7 @@ def _campaign(args: argparse.Namespace) -> int:
     if args.ground_images is not None:
         from pathlib import Path
 
-        from eaglemission.drivers.cameras.photo_ground import GroundImageError, ground_image_files
+        from eaglemission.ground_images import GroundImageError, ground_image_files
 
         try:
             ground_images = ground_image_files(Path(args.ground_images))

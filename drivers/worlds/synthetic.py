@@ -46,7 +46,7 @@ class GroundImageConfig(StrictModel):
     def _check_files(cls, data: Any) -> Any:
         from pathlib import Path
 
-        from eaglemission.drivers.cameras.photo_ground import sidecar_m_per_px
+        from eaglemission.ground_images import sidecar_m_per_px
 
         if not isinstance(data, dict) or not isinstance(data.get("path"), str):
             return data
