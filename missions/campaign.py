@@ -27,14 +27,23 @@ from eaglemission.assembly import build_world
 from eaglemission.config import MissionFile, load_config
 
 
-def randomise(cfg: MissionFile, rng: np.random.RandomState) -> MissionFile:
+def randomise(cfg: MissionFile, rng: np.random.RandomState,
+              ground_images: list[Path] | None = None) -> MissionFile:
     """A copy of ``cfg`` with a randomised simulated world (pure given the RNG state): the
-    world plugin draws the variant (``World.randomised_params``)."""
+    world plugin draws the variant (``World.randomised_params``). With ``ground_images`` the
+    run's ground is one of them, drawn (with its offset from home) from an RNG of the drawn
+    world seed, so the other draws stay those of a campaign without photos."""
     world = build_world(cfg)
     if world is None or cfg.world is None:
         raise ValueError("world: the campaign needs a simulated world (`world:` section)")
     route = [(w.north_m, w.east_m) for w in cfg.mission.route]
     params = world.randomised_params(rng, route)
+    if ground_images:
+        g = np.random.RandomState(int(params.get("seed", 0)) ^ 0x9E3779B9)
+        image = ground_images[int(g.randint(0, len(ground_images)))]
+        params["ground_image"] = {"path": str(image.resolve()),
+                                  "offset_ne_m": (float(g.uniform(-30, 30)),
+                                                  float(g.uniform(-30, 30)))}
     return MissionFile.model_validate(
         {**cfg.model_dump(), "world": {"type": cfg.world.type, "params": params}})
 
@@ -96,17 +105,19 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                  out_dir: str | None = None, progress: bool = False,
                  executor: str | Executor = "local",
                  address: str | None = None,
-                 faults: list[str] | None = None) -> CampaignSummary:
+                 faults: list[str] | None = None,
+                 ground_images: list[Path] | None = None) -> CampaignSummary:
     """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
     :class:`~eaglemission.missions.campaign_executors.Executor`); with ``out_dir`` each finished
     run is stored there and a rerun flies only the missing ones
     (:mod:`eaglemission.missions.campaign_resume`). ``faults``: fault kinds, one drawn per run
-    (:mod:`.campaign_faults`)."""
+    (:mod:`.campaign_faults`). ``ground_images``: each run's ground is one of these photos."""
     base = load_config(config)
     rng = np.random.RandomState(seed)
     jobs = []
     for i in range(runs):
-        cfg = randomise(base, np.random.RandomState(int(rng.randint(0, 2**31 - 1))))
+        cfg = randomise(base, np.random.RandomState(int(rng.randint(0, 2**31 - 1))),
+                        ground_images)
         if faults:
             cfg = with_drawn_fault(cfg, i, faults, seed)
         jobs.append((i, cfg.model_dump(mode="json"), out_dir))

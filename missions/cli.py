@@ -22,6 +22,8 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
                    "default: a local Ray with --workers CPUs)")
     p.add_argument("--faults", metavar="KINDS", help="inject one fault per run: 'all' or "
                    "kind1,kind2 (docs/faults.md); exit 1 when a run misses its expected outcome")
+    p.add_argument("--ground-images", metavar="DIR", help="draw each run's ground from the "
+                   "NAME.jpg|png photos of DIR, each with NAME.yaml holding m_per_px")
 
 
 def _campaign(args: argparse.Namespace) -> int:
@@ -40,10 +42,22 @@ def _campaign(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+    ground_images = None
+    if args.ground_images is not None:
+        from pathlib import Path
+
+        from eaglemission.ground_images import GroundImageError, ground_image_files
+
+        try:
+            ground_images = ground_image_files(Path(args.ground_images))
+        except GroundImageError as exc:
+            print(f"error: --ground-images: {exc}", file=sys.stderr)
+            return 2
     try:
         summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
                                workers=args.workers, out_dir=args.out, progress=True,
-                               executor=args.executor, address=args.address, faults=kinds)
+                               executor=args.executor, address=args.address, faults=kinds,
+                               ground_images=ground_images)
     except (CampaignExecutorError, CampaignResumeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

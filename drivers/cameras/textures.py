@@ -252,9 +252,14 @@ class GroundTextures:
     detail_tiled: tuple[NDArray[np.uint8], ...]
     detail_texel_m: float
     detail_period_px: int  # at level 0
+    border_mode: int = cv2.BORDER_CONSTANT  # beyond the base: its mean colour, or mirrored
+    fade_extent_m: float | None = None  # side of the square the edge fade acts on
 
     @property
     def extent_m(self) -> float:
+        """Side of the square around home whose outer 30 % fades to the mean colour."""
+        if self.fade_extent_m is not None:
+            return float(self.fade_extent_m)
         return float(self.base[0].shape[0] * self.base_texel_m)
 
     @property

@@ -166,8 +166,7 @@ class SyntheticWorld:
                 f"extent_m: {extent_m:.0f} m is too large for a {base_texel_m} m texel texture "
                 f"(memory); place the target and distractors within 500 m of home")
         self.extent_m = float(extent_m)
-        self.textures: GroundTextures = ground_textures(
-            sim.ground_texture, self.seed, float(extent_m), base_texel_m)
+        self.textures: GroundTextures = self._ground_textures(float(extent_m), base_texel_m)
         rng = seed_rng(self.seed, "sun")
         az = math.radians(rng.uniform(-180.0, 180.0))
         el = math.radians(rng.uniform(35.0, 65.0))
@@ -188,6 +187,18 @@ class SyntheticWorld:
         self._lock = threading.Lock()
         self._truth: dict[str, OrderedDict[int, GroundTruth]] = {}
         self._truth_history = int(truth_history)
+
+    def _ground_textures(self, extent_m: float, base_texel_m: float) -> GroundTextures:
+        gi = self.simulation.ground_image
+        if gi is None:
+            return ground_textures(self.simulation.ground_texture, self.seed, extent_m,
+                                   base_texel_m)
+        from eaglemission.drivers.cameras.photo_ground import photo_ground_textures
+
+        assert gi.m_per_px is not None  # filled from the sidecar by the config
+        return photo_ground_textures(gi.path, float(gi.m_per_px), self.seed, extent_m,
+                                     (float(gi.offset_ne_m[0]), float(gi.offset_ne_m[1])),
+                                     gi.detail)
 
     # -- target ---------------------------------------------------------------------------------
     @property

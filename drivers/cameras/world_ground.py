@@ -153,7 +153,7 @@ class GroundRenderer:
                 lb = min(max(math.floor(math.log2(max(f, 1e-9) / tex.base_texel_m) + 0.5), 0),
                          nb - 1)
                 ld_f = math.floor(math.log2(max(f, 1e-9) / tex.detail_texel_m) + 0.5)
-                ld = int(max(0, ld_f)) if ld_f < nd else -1
+                ld = int(max(0, ld_f)) if 0 < nd and ld_f < nd else -1
             r0 = i * step
             r1 = min(H, r0 + step)
             if bands and bands[-1][2] == lb and bands[-1][3] == ld:
@@ -180,13 +180,13 @@ class GroundRenderer:
             # same interpolation per channel; OpenCV's 4-channel path is ~2x faster
             band4 = cv2.warpPerspective(src4, M, (W, h),
                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                        borderMode=cv2.BORDER_CONSTANT,
+                                        borderMode=tex.border_mode,
                                         borderValue=(*mean, 255.0))
             cv2.cvtColor(band4, cv2.COLOR_BGRA2BGR, dst=band)
         else:
             cv2.warpPerspective(tex.base[lb], M, (W, h), dst=band,
                                 flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=mean)
+                                borderMode=tex.border_mode, borderValue=mean)
         if ld < 0:
             return
         src = tex.detail_tiled[ld]

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from eaglemission.config import Finite, NonNegFloat, PosFloat, StrictModel
 
@@ -30,6 +30,34 @@ class DistractorConfig(StrictModel):
     velocity_ne_mps: tuple[Finite, Finite] = (0.0, 0.0)
 
 
+class GroundImageConfig(StrictModel):
+    """A real aerial photograph as the ground (north up, centred on home + ``offset_ne_m``,
+    mirrored beyond its edge); the photos are never copied into the repository."""
+
+    path: str = Field(description="NAME.jpg|png, nadir photo of the ground")
+    m_per_px: PosFloat | None = Field(
+        default=None, description="metres per pixel (default: `m_per_px` of NAME.yaml)")
+    offset_ne_m: tuple[Finite, Finite] = (0.0, 0.0)
+    detail: bool = Field(default=True, description="add the fine detail layer (2.5 mm up to "
+                         "the photo's 2 px) at the camera's scale")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _check_files(cls, data: Any) -> Any:
+        from pathlib import Path
+
+        from eaglemission.ground_images import sidecar_m_per_px
+
+        if not isinstance(data, dict) or not isinstance(data.get("path"), str):
+            return data
+        p = Path(data["path"])
+        if not p.is_file():
+            raise ValueError(f"path: ground image {p} not found")
+        if data.get("m_per_px") is None:
+            data = {**data, "m_per_px": sidecar_m_per_px(p)}
+        return data
+
+
 class SyntheticWorldConfig(StrictModel):
     """The simulated world (ground truth). Only fake drivers and the evaluator read it."""
 
@@ -38,6 +66,8 @@ class SyntheticWorldConfig(StrictModel):
     target_east_m: Finite = 5.0
     target_yaw_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
     ground_texture: Literal["vegetation", "soil", "snow", "grass"] = "vegetation"
+    ground_image: GroundImageConfig | None = Field(
+        default=None, description="real aerial photo as the ground (replaces ground_texture)")
     distractors: list[DistractorConfig] = Field(default_factory=list)
     light_gain: Annotated[float, Field(gt=0, le=4)] = 1.0
     noise_sigma: Annotated[float, Field(ge=0, le=50)] = 2.0
