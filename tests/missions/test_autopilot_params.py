@@ -45,7 +45,8 @@ def test_rtl_return_alt_above_the_envelope_is_set_and_restored(fast_config: Miss
     ap = [r for r in recs if r["kind"] == "autopilot_params"]
     assert len(ap) == 1 and ap[0]["mode"] == "set" and not ap[0]["refused"]
     assert ap[0]["values"]["RTL_RETURN_ALT"] == HIGH_RTL_M  # read, never assumed
-    assert "RTL_DESCEND_ALT" in ap[0]["missing"]  # not on this vehicle: reported once
+    assert ap[0]["values"]["RTL_DESCEND_ALT"] == 10.0  # the airframe's, as PX4 reports it
+    assert "COM_RC_IN_MODE" in ap[0]["missing"]  # not on this vehicle: reported once
     [ch] = [c for c in ap[0]["set"] if c["name"] == "RTL_RETURN_ALT"]
     assert (ch["old"], ch["new"], ch["envelope_key"]) == (HIGH_RTL_M, want,
                                                           "safety.max_altitude_m")
