@@ -108,12 +108,17 @@ class Recovered:
     chunks: int
     complete: bool
     stopped: str
+    orphans: int = 0
+    """Messages of a channel never defined before them (a corrupt chunk whose CRC was not
+    set): left out."""
 
     def line(self) -> str:
         how = ("the file was complete" if self.complete
                else f"read up to its last complete chunk ({self.stopped or 'end of file'})")
-        return (f"recovered {self.messages} messages from {self.chunks} chunks of "
-                f"{self.source} into {self.output}: {how}")
+        left = (f"; {self.orphans} messages of undefined channels left out" if self.orphans
+                else "")
+        return (f"recovered {self.messages - self.orphans} messages from {self.chunks} chunks "
+                f"of {self.source} into {self.output}: {how}{left}")
 
 
 def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
@@ -127,6 +132,7 @@ def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
     schemas: dict[int, int] = {}
     channels: dict[int, int] = {}
     st = Scan()
+    orphans = 0
     with open(out, "wb") as fh:
         w: Any = Writer(fh)  # mcap's Writer: finish() is untyped
         w.start(profile="", library="eaglemission (recovered)")
@@ -140,12 +146,15 @@ def recover(source: str | Path, output: str | Path | None = None) -> Recovered:
                         rec.topic, rec.message_encoding, schemas.get(rec.schema_id, 0),
                         dict(rec.metadata))
             elif isinstance(rec, Message):
+                if rec.channel_id not in channels:
+                    orphans += 1
+                    continue
                 w.add_message(channels[rec.channel_id], log_time=rec.log_time, data=rec.data,
                               publish_time=rec.publish_time, sequence=rec.sequence)
             elif isinstance(rec, Metadata):
                 w.add_metadata(rec.name, dict(rec.metadata))
         w.finish()
-    return Recovered(src, out, st.messages, st.chunks, st.complete, st.stopped)
+    return Recovered(src, out, st.messages, st.chunks, st.complete, st.stopped, orphans)
 
 
 def recover_all(source: str | Path, output: str | Path | None = None) -> list[Recovered]:

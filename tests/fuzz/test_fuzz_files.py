@@ -62,3 +62,14 @@ def test_recordings_cut_or_lying_about_lengths_read_cleanly(samples: list[bytes]
 def test_mutated_jsonl_is_read_or_refused(rand: random.Random, work: Path) -> None:
     log, tel = sample_jsonl()
     assert check_jsonl(work, mutate_bytes(log, rand), mutate_bytes(tel, rand))
+
+
+CASES = Path(__file__).parent / "cases"
+
+
+def test_atheris_case_a_message_of_an_undefined_channel(work: Path) -> None:
+    """Found by benchmarks/atheris_fuzz.py mcap: a chunk (no CRC) with a message whose channel
+    was never defined made ``log --recover`` raise KeyError; it is left out and counted."""
+    data = (CASES / "atheris_recover_unknown_channel.mcap").read_bytes()
+    assert check_mcap(work / "x.mcap", data) in ("read/read", "refused/read", "read/refused",
+                                                 "refused/refused")
