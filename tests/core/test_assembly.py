@@ -17,6 +17,7 @@ from eaglemission import assembly, registry
 from eaglemission.assembly import FlightOptions, assemble, exit_code_for, fly_sync
 from eaglemission.clock import ManualClock
 from eaglemission.config import MissionFile, load_config
+from eaglemission.errors import ConfigError
 from eaglemission.interfaces import MissionHooks
 
 THIRD_PARTY = '''
@@ -132,6 +133,27 @@ def test_one_detector_per_camera_with_per_camera_overrides(cfg: MissionFile) -> 
     assert narrow.config.regions.threshold == "otsu"
     assert wide.config.regions.threshold != "otsu"
     assert wide.config.downscale == narrow.config.downscale == 2
+
+
+def test_the_targets_example_image_reaches_every_detector(cfg: MissionFile,
+                                                          tmp_path: Path) -> None:
+    """``target.appearance_image`` is read once and handed to both cameras' detectors as
+    their ``appearance``; an unreadable file is refused naming the key."""
+    import cv2
+    import numpy as np
+
+    img = np.zeros((24, 40, 3), np.uint8)
+    img[4:20, 6:34] = (30, 40, 210)
+    cv2.imwrite(str(tmp_path / "box.png"), img)
+    with_image = variant(cfg, target={"appearance_image": str(tmp_path / "box.png")},
+                         detector={"type": "dtdmi", "params": {"preset": "field"}})
+    asm = assemble(with_image, ManualClock())
+    for cid in ("wide", "narrow"):
+        assert np.array_equal(asm.detectors[cid].appearance, img), cid
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    bad = variant(cfg, target={"appearance_image": str(tmp_path / "bad.png")})
+    with pytest.raises(ConfigError, match="target.appearance_image: cannot read"):
+        assemble(bad, ManualClock())
 
 
 def test_the_mission_is_loaded_by_its_type(cfg: MissionFile, third_party: Path) -> None:
