@@ -10,7 +10,6 @@ photo cannot hold, added at the camera's scale instead of an upsampled blur.
 from __future__ import annotations
 
 import functools
-import math
 from pathlib import Path
 
 import cv2
@@ -20,6 +19,7 @@ from eaglemission.drivers.cameras.textures import (
     _rng,
     mip_pyramid,
     periodic_bandpass_noise,
+    tiled_detail_levels,
 )
 from numpy.typing import NDArray
 
@@ -52,14 +52,9 @@ def photo_ground_textures(path: str, m_per_px: float, seed: int, fade_extent_m: 
         a.flags.writeable = False
     tiled: list[NDArray[np.uint8]] = []
     if detail:
-        lvl = photo_detail(detail_size_px, 2.0 * m_per_px / DETAIL_TEXEL_M, seed)
-        while DETAIL_TEXEL_M * 2 ** len(tiled) < m_per_px and lvl.shape[0] >= 8:
-            reps = max(1, int(math.ceil(tiled_size_px / lvl.shape[0])))
-            t = np.tile(lvl, (reps, reps))
-            t.flags.writeable = False
-            tiled.append(t)
-            lvl = np.asarray(cv2.resize(lvl, (lvl.shape[1] // 2, lvl.shape[0] // 2),
-                                        interpolation=cv2.INTER_AREA), dtype=np.uint8)
+        tiled = tiled_detail_levels(
+            photo_detail(detail_size_px, 2.0 * m_per_px / DETAIL_TEXEL_M, seed),
+            DETAIL_TEXEL_M, m_per_px, tiled_size_px)
     mean = tuple(float(v) for v in levels[-1].reshape(-1, 3).mean(axis=0))
     hh, ww = levels[0].shape[:2]
     return GroundTextures("photo", tuple(levels), float(m_per_px),

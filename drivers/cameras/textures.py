@@ -317,6 +317,22 @@ def _prune(folder: Path, *, keep: Path) -> None:
             f.unlink(missing_ok=True)
 
 
+def tiled_detail_levels(detail: NDArray[np.uint8], detail_texel_m: float, base_texel_m: float,
+                        tiled_size_px: int) -> list[NDArray[np.uint8]]:
+    """The detail texture's levels (halved each time) whose texel stays finer than the base
+    texel (coarser ones are ~flat), each tiled to about ``tiled_size_px``, read-only."""
+    tiled: list[NDArray[np.uint8]] = []
+    lvl = detail
+    while detail_texel_m * 2 ** len(tiled) < base_texel_m and lvl.shape[0] >= 8:
+        reps = max(1, int(math.ceil(tiled_size_px / lvl.shape[0])))
+        t = np.tile(lvl, (reps, reps))
+        t.flags.writeable = False
+        tiled.append(t)
+        lvl = np.asarray(cv2.resize(lvl, (lvl.shape[1] // 2, lvl.shape[0] // 2),
+                                    interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    return tiled
+
+
 @functools.lru_cache(maxsize=3)
 def ground_textures(kind: str, seed: int, extent_m: float, base_texel_m: float = 0.05,
                     detail_texel_m: float = 0.0025, detail_size_px: int = 2048,
@@ -332,16 +348,7 @@ def ground_textures(kind: str, seed: int, extent_m: float, base_texel_m: float =
         a.flags.writeable = False
     detail = _cached(f"{tag}_detail_{detail_size_px}_{detail_texel_m:g}",
                      lambda: detail_texture(kind, detail_size_px, detail_texel_m, seed))
-    tiled: list[NDArray[np.uint8]] = []
-    lvl = detail
-    # Detail levels whose texel stays finer than the base texel (coarser ones are ~flat).
-    while detail_texel_m * 2 ** len(tiled) < base_texel_m and lvl.shape[0] >= 8:
-        reps = max(1, int(math.ceil(tiled_size_px / lvl.shape[0])))
-        t = np.tile(lvl, (reps, reps))
-        t.flags.writeable = False
-        tiled.append(t)
-        lvl = np.asarray(cv2.resize(lvl, (lvl.shape[1] // 2, lvl.shape[0] // 2),
-                                    interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    tiled = tiled_detail_levels(detail, detail_texel_m, base_texel_m, tiled_size_px)
     mean = tuple(float(v) for v in base_levels[-1].reshape(-1, 3).mean(axis=0))
     half = size * base_texel_m / 2.0
     return GroundTextures(kind, tuple(base_levels), base_texel_m, half, -half,

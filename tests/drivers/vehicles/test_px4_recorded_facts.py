@@ -182,6 +182,22 @@ class Gcs:
     def acks(self, cmd: int, since_wall: float) -> list[int]:
         return [m.result for w, _, m in self.out("COMMAND_ACK") if w >= since_wall and m.command == cmd]
 
+    def start_offboard_here(self) -> None:
+        """Stream a setpoint at the current estimate, then switch to OFFBOARD as a client does:
+        the stream first (PX4 refuses OFFBOARD without it; a loaded machine delays it), and a
+        refused start retried."""
+        emu = self.emu
+        e, hl = emu.snapshot().estimate_position_ned_m, emu.home_local
+        self.setpoint = (e[0] + hl[0], e[1] + hl[1], e[2] + hl[2])
+        self.wait(lambda: emu.snapshot().offboard_setpoint is not None, 5.0, "setpoints arriving")
+        for _ in range(5):
+            self.command(M.MAV_CMD_DO_SET_MODE, 129, 6, 0)
+            deadline = time.monotonic() + 1.0
+            while emu.snapshot().mode != FlightMode.OFFBOARD and time.monotonic() < deadline:
+                time.sleep(0.01)
+            if emu.snapshot().mode == FlightMode.OFFBOARD:
+                break
+
     def fly_up_and_land(self, altitude_m: float = 2.0) -> tuple[float, float]:
         """Arm (if needed), take off, land; returns (touchdown, "Landing detected") sim times."""
         emu = self.emu

@@ -93,17 +93,7 @@ def emulator_takeover(main: int, sub: int, manual: bool) -> dict[str, Any]:
         gcs.command(M.MAV_CMD_NAV_TAKEOFF)
         gcs.wait(lambda: emu.snapshot().mode == FlightMode.HOLD
                  and -emu.snapshot().true_position_ned_m[2] > 2.7, 30.0, "takeoff to 3 m")
-        e, hl = emu.snapshot().estimate_position_ned_m, emu.home_local
-        gcs.setpoint = (e[0] + hl[0], e[1] + hl[1], e[2] + hl[2])
-        # the stream first (PX4 refuses OFFBOARD without it; a loaded machine delays it)
-        gcs.wait(lambda: emu.snapshot().offboard_setpoint is not None, 5.0, "setpoints arriving")
-        for _ in range(5):  # a client retries a refused start (stream late on a loaded machine)
-            gcs.command(M.MAV_CMD_DO_SET_MODE, 129, 6, 0)
-            deadline = time.monotonic() + 1.0
-            while emu.snapshot().mode != FlightMode.OFFBOARD and time.monotonic() < deadline:
-                time.sleep(0.01)
-            if emu.snapshot().mode == FlightMode.OFFBOARD:
-                break
+        gcs.start_offboard_here()
         gcs.wait(lambda: emu.snapshot().mode == FlightMode.OFFBOARD, 5.0, "OFFBOARD")
         gcs.wait_sim(emu.snapshot().sim_time_s + 5.0)
         other = SecondGcs(gcs, manual)

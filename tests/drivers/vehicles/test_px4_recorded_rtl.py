@@ -23,8 +23,6 @@ import pytest
 from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
 from eaglemission.drivers.vehicles.simulated import SimulatedVehicle, SimulatedVehicleConfig
 
-from eaglemission.types import FlightMode
-
 try:  # tests/ is not a package
     from emulator_support import scenario
     from test_px4_recorded_facts import Gcs, M
@@ -84,17 +82,8 @@ def emulator_rtl(params: dict[str, float]) -> dict[str, float]:
         gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         gcs.command(M.MAV_CMD_NAV_TAKEOFF)
         gcs.wait(lambda: -emu.snapshot().estimate_position_ned_m[2] > 3.6, 30.0, "takeoff to 4 m")
-        e, hl = emu.snapshot().estimate_position_ned_m, emu.home_local
-        gcs.setpoint = (e[0] + hl[0], e[1] + hl[1], e[2] + hl[2])
-        # the stream first (PX4 refuses OFFBOARD without it; a loaded machine delays it)
-        gcs.wait(lambda: emu.snapshot().offboard_setpoint is not None, 5.0, "setpoints arriving")
-        for _ in range(5):  # a client retries a refused start (stream late on a loaded machine)
-            gcs.command(M.MAV_CMD_DO_SET_MODE, 129, 6, 0)
-            deadline = time.monotonic() + 1.0
-            while emu.snapshot().mode != FlightMode.OFFBOARD and time.monotonic() < deadline:
-                time.sleep(0.01)
-            if emu.snapshot().mode == FlightMode.OFFBOARD:
-                break
+        gcs.start_offboard_here()
+        hl = emu.home_local
         gcs.setpoint = (hl[0] + 10.0, hl[1], hl[2] - 4.0)
         gcs.wait(lambda: math.dist(emu.snapshot().estimate_position_ned_m[:2], (10.0, 0.0)) < 0.3,
                  30.0, "10 m north")
