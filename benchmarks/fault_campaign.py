@@ -6,7 +6,9 @@ the failures; exits 1 when a run missed its expected outcome. The issue's figure
 
     python benchmarks/fault_campaign.py --runs 1000 --workers 2
 
-(``--fast``: the MSS detector at 1/2 resolution, as the closed-loop tests fly.)
+(``--fast``: the MSS detector at 1/2 resolution, as the closed-loop tests fly. ``--binning 2``:
+both cameras binned 2x2 as the daA1280-54uc can be, 640x480 with 7.5 um pixels, the same field of
+view; the detector's ``downscale`` is divided by the binning so its maps keep their size.)
 """
 
 from __future__ import annotations
@@ -32,15 +34,26 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--faults", default="all")
     ap.add_argument("--fast", action="store_true", help="MSS detector at 1/2 resolution")
+    ap.add_argument("--binning", type=int, default=1, choices=(1, 2, 4),
+                    help="bin both cameras NxN (same field of view, N x the pixel size)")
     ap.add_argument("--out", help="keep the run logs and summary.json here")
     a = ap.parse_args()
     config = a.config
-    if a.fast:
+    if a.fast or a.binning > 1:
         d = load_config(config, check_plugins=False).model_dump(mode="json")
-        d["detector"] = {"type": "mss", "params": {"downscale": 2}, "per_camera": {}}
-        tmp = Path(tempfile.mkdtemp()) / "fast.yaml"
+        if a.fast:
+            d["detector"] = {"type": "mss", "params": {"downscale": 2}, "per_camera": {}}
+        for cam in d["cameras"].values():
+            w, h = cam["resolution_px"]
+            cam["resolution_px"] = [w // a.binning, h // a.binning]
+            cam["pixel_size_um"] *= a.binning
+        params = d["detector"]["params"]
+        params["downscale"] = max(1, int(params.get("downscale", 1)) // a.binning)
+        tmp = Path(tempfile.mkdtemp()) / "campaign.yaml"
         tmp.write_text(yaml.safe_dump(d))
         config = str(tmp)
+        print(f"config: {tmp} (detector {d['detector']['type']} {params}, cameras "
+              f"{[c['resolution_px'] for c in d['cameras'].values()]})")
     t0 = time.perf_counter()
     summary = run_campaign(config, runs=a.runs, seed=a.seed, workers=a.workers,
                            out_dir=a.out, progress=True, faults=parse_kinds(a.faults))
