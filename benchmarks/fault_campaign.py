@@ -4,7 +4,9 @@ Prints the per-fault table (runs, end states, runs in their expected outcome, ti
 state, true envelope violations, complete logs), the share of tolerable faults completed and
 the failures; exits 1 when a run missed its expected outcome. The issue's figure is 1,000 runs:
 
-    python benchmarks/fault_campaign.py --runs 1000 --workers 2
+    python benchmarks/fault_campaign.py --runs 1000 --workers 2 --binning 2
+    python benchmarks/fault_campaign.py --runs 50 --workers 2 --binning 2 --vehicle emulator \
+        --faults link_loss,link_delay,link_duplicate,link_reorder,autopilot_clock_jump
 
 (``--fast``: the MSS detector at 1/2 resolution, as the closed-loop tests fly. ``--binning 2``:
 both cameras binned 2x2 as the daA1280-54uc can be, 640x480 with 7.5 um pixels, the same field of
@@ -21,6 +23,7 @@ from pathlib import Path
 
 import yaml
 from eaglemission.missions.campaign import print_summary, run_campaign
+from eaglemission.missions.campaign_emulator import EMULATOR_KINDS, emulator_kinds
 from eaglemission.missions.campaign_faults import parse_kinds, print_fault_table
 
 from eaglemission.config import load_config
@@ -36,6 +39,9 @@ def main() -> int:
     ap.add_argument("--fast", action="store_true", help="MSS detector at 1/2 resolution")
     ap.add_argument("--binning", type=int, default=1, choices=(1, 2, 4),
                     help="bin both cameras NxN (same field of view, N x the pixel size)")
+    ap.add_argument("--vehicle", choices=("simulated", "emulator"), default="simulated",
+                    help="emulator: each run in real time through MAVSDK against its own "
+                    "sitl-vehicle process, link faults on its UDP path")
     ap.add_argument("--out", help="keep the run logs and summary.json here")
     a = ap.parse_args()
     config = a.config
@@ -54,9 +60,12 @@ def main() -> int:
         config = str(tmp)
         print(f"config: {tmp} (detector {d['detector']['type']} {params}, cameras "
               f"{[c['resolution_px'] for c in d['cameras'].values()]})")
+    kinds = parse_kinds(a.faults)
+    if a.vehicle == "emulator":
+        kinds = list(EMULATOR_KINDS) if a.faults.strip() == "all" else emulator_kinds(kinds)
     t0 = time.perf_counter()
     summary = run_campaign(config, runs=a.runs, seed=a.seed, workers=a.workers,
-                           out_dir=a.out, progress=True, faults=parse_kinds(a.faults))
+                           out_dir=a.out, progress=True, faults=kinds, vehicle=a.vehicle)
     wall = time.perf_counter() - t0
     print_summary(summary)
     failed = print_fault_table(summary.runs)

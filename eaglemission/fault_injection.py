@@ -3,8 +3,10 @@ beside the mission injects each fault at its time and writes a ``fault_injected`
 
 Camera faults go to the ``faulty`` camera plugin wrapped around the configured cameras;
 detector and estimator faults to :mod:`eaglemission.fault_wrappers`; vehicle and world faults to
-the vehicle's own injection methods (the ``simulated`` vehicle has them; a vehicle without one
-is refused with the fault's path). Nothing here touches the mission's code: the mission only
+the vehicle's own injection methods (the ``simulated`` vehicle has them all), or those of its
+link (``driver.link_faults``: the ``mavsdk`` vehicle's UDP fault relay with ``fault_relay:
+true`` carries the link kinds in real time); a vehicle without one is refused with the
+fault's path. Nothing here touches the mission's code: the mission only
 sees what a real failure would show it.
 """
 
@@ -39,6 +41,19 @@ VEHICLE_METHODS = {"link_loss": "inject_link_loss", "gps_loss": "inject_gps_loss
                    "link_reorder": "inject_link_reorder",
                    "autopilot_clock_jump": "inject_autopilot_clock_jump"}
 POLL_S = 0.02
+LINK_KINDS = frozenset({"link_loss", "link_delay", "link_duplicate", "link_reorder",
+                        "autopilot_clock_jump"})
+
+
+def injector_of(driver: Any, kind: str) -> Any:
+    """The callable injecting ``kind`` into ``driver`` (its own method, else its link's), or
+    None."""
+    name = VEHICLE_METHODS[kind]
+    for owner in (driver, getattr(driver, "link_faults", None)):
+        fn = getattr(owner, name, None) if owner is not None else None
+        if callable(fn):
+            return fn
+    return None
 
 
 class FaultInjector:
@@ -51,7 +66,7 @@ class FaultInjector:
         self.injected: list[tuple[int, FaultSpec]] = []
 
     def _vehicle(self, spec: FaultSpec) -> dict[str, Any]:
-        fn = getattr(self.driver, VEHICLE_METHODS[spec.kind])
+        fn = injector_of(self.driver, spec.kind)
         if spec.kind in ("link_loss", "gps_loss", "link_duplicate", "link_reorder"):
             fn(spec.duration_s)
             return {}
@@ -118,9 +133,10 @@ def attach(asm: Any) -> FaultInjector | None:
     kinds = {f.kind for f in specs}
     problems = [f"faults.inject.{i}.kind: the {asm.config.vehicle.type!r} vehicle cannot "
                 f"inject {f.kind} (no {VEHICLE_METHODS[f.kind]}(); the `simulated` vehicle "
-                "can)" for i, f in enumerate(specs)
-                if f.kind in VEHICLE_METHODS
-                and not callable(getattr(asm.driver, VEHICLE_METHODS[f.kind], None))]
+                "can" + (", and the `mavsdk` one with `vehicle.params.fault_relay: true`)"
+                         if f.kind in LINK_KINDS else ")")
+                for i, f in enumerate(specs)
+                if f.kind in VEHICLE_METHODS and injector_of(asm.driver, f.kind) is None]
     if problems:
         raise ConfigError(problems)
     active = ActiveFaults()

@@ -49,17 +49,25 @@ class TelemetryTimeCheck:
             raise ValueError(f"jump_s: must be > 0, got {jump_s}")
         self.jump_ns = int(jump_s * 1e9)
         self.last: VehicleState | None = None
+        self._last_stamps: tuple[int, int | None] | None = None  # (receipt, autopilot)
         self._anchor_ns: int | None = None
 
     def check(self, vs: VehicleState) -> Verdict:
         """Judge ``vs``; an accepted sample becomes :attr:`last`. The same message read again
         (same receipt and autopilot stamps) is accepted silently."""
-        ap = vs.autopilot_time_ns
-        last = self.last
-        if ap is None or last is None or last.autopilot_time_ns is None:
-            return self._accept(vs)
-        last_ap = last.autopilot_time_ns
-        if vs.timestamp_ns == last.timestamp_ns and ap == last_ap:
+        verdict = self.check_stamps(vs.timestamp_ns, vs.autopilot_time_ns)
+        if verdict.accepted:
+            self.last = vs
+        return verdict
+
+    def check_stamps(self, receipt_ns: int, autopilot_ns: int | None) -> Verdict:
+        """:meth:`check` on one message's two stamps (a driver judging a raw stream)."""
+        ap = autopilot_ns
+        last = self._last_stamps
+        if ap is None or last is None or last[1] is None:
+            return self._accept(receipt_ns, ap)
+        last_receipt, last_ap = last[0], last[1]
+        if receipt_ns == last_receipt and ap == last_ap:
             return Verdict(True)
         if ap == last_ap:
             return Verdict(False, DUPLICATE, "a second message with the autopilot time of the "
@@ -70,30 +78,30 @@ class TelemetryTimeCheck:
                 return Verdict(False, OUT_OF_ORDER, f"a sample {back_s * 1e3:.0f} ms older than "
                                                     "the last one: ignored")
             self._anchor_ns = None
-            self._accept(vs)
+            self._accept(receipt_ns, ap)
             return Verdict(True, CLOCK_JUMP, f"the autopilot's time went back {back_s:.2f} s: "
                                              "time base re-anchored")
-        offset = vs.timestamp_ns - ap
+        offset = receipt_ns - ap
         assert self._anchor_ns is not None
         if self._anchor_ns - offset > self.jump_ns:
             ahead_s = (self._anchor_ns - offset) * 1e-9
             self._anchor_ns = None
-            self._accept(vs)
+            self._accept(receipt_ns, ap)
             return Verdict(True, CLOCK_JUMP, f"the autopilot's time jumped {ahead_s:.2f} s "
                                              "ahead of the host's: time base re-anchored")
-        return self._accept(vs)
+        return self._accept(receipt_ns, ap)
 
-    def _accept(self, vs: VehicleState) -> Verdict:
-        self.last = vs
-        if vs.autopilot_time_ns is not None:
-            offset = vs.timestamp_ns - vs.autopilot_time_ns
+    def _accept(self, receipt_ns: int, autopilot_ns: int | None) -> Verdict:
+        self._last_stamps = (receipt_ns, autopilot_ns)
+        if autopilot_ns is not None:
+            offset = receipt_ns - autopilot_ns
             self._anchor_ns = offset if self._anchor_ns is None else min(self._anchor_ns, offset)
         return Verdict(True)
 
     def age_s(self, now_ns: int) -> float:
         """Age of the newest accepted sample at host time ``now_ns`` (0 without autopilot
         stamps: the vehicle's own ``link_ok`` is the only judge then)."""
-        last = self.last
-        if last is None or last.autopilot_time_ns is None or self._anchor_ns is None:
+        last = self._last_stamps
+        if last is None or last[1] is None or self._anchor_ns is None:
             return 0.0
-        return max(0.0, (now_ns - last.autopilot_time_ns - self._anchor_ns) * 1e-9)
+        return max(0.0, (now_ns - last[1] - self._anchor_ns) * 1e-9)

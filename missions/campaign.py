@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from eaglemission.missions.campaign_emulator import VEHICLES
 from eaglemission.missions.campaign_executors import Executor, make_executor
 from eaglemission.missions.campaign_faults import judge, with_drawn_fault
 from eaglemission.missions.campaign_resume import RunStore
@@ -48,18 +49,22 @@ def randomise(cfg: MissionFile, rng: np.random.RandomState,
         {**cfg.model_dump(), "world": {"type": cfg.world.type, "params": params}})
 
 
-def _one_run(job: tuple[int, dict[str, Any], str | None]) -> dict[str, Any]:
-    index, cfg_dict, out_dir = job
+def _one_run(job: tuple[Any, ...]) -> dict[str, Any]:
+    index, cfg_dict, out_dir = job[:3]
+    vehicle = job[3] if len(job) > 3 else "simulated"
     import logging
 
     logging.disable(logging.WARNING)
+    from eaglemission.missions.campaign_emulator import fly_on_emulator
     from eaglemission.missions.sim import run_simulation
 
     cfg = MissionFile.model_validate(cfg_dict)
     log_path = None if out_dir is None else Path(out_dir) / f"run_{index:03d}.jsonl"
     faulted = cfg.faults is not None and bool(cfg.faults.inject)
     try:
-        out = run_simulation(cfg, log_path=log_path, keep_log=faulted)
+        out = (fly_on_emulator(cfg, log_path=log_path, keep_log=faulted)
+               if vehicle == "emulator" else
+               run_simulation(cfg, log_path=log_path, keep_log=faulted))
     except Exception as exc:  # a crashed run is a failure with its reason, not a lost campaign
         return {"run": index, "crashed": True, "success": False,
                 "explanation": f"crashed: {type(exc).__name__}: {exc}",
@@ -106,12 +111,17 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                  executor: str | Executor = "local",
                  address: str | None = None,
                  faults: list[str] | None = None,
-                 ground_images: list[Path] | None = None) -> CampaignSummary:
+                 ground_images: list[Path] | None = None,
+                 vehicle: str = "simulated") -> CampaignSummary:
     """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
     :class:`~eaglemission.missions.campaign_executors.Executor`); with ``out_dir`` each finished
     run is stored there and a rerun flies only the missing ones
     (:mod:`eaglemission.missions.campaign_resume`). ``faults``: fault kinds, one drawn per run
-    (:mod:`.campaign_faults`). ``ground_images``: each run's ground is one of these photos."""
+    (:mod:`.campaign_faults`). ``ground_images``: each run's ground is one of these photos.
+    ``vehicle``: ``simulated`` (virtual time) or ``emulator`` (real time through MAVSDK,
+    :mod:`.campaign_emulator`)."""
+    if vehicle not in VEHICLES:
+        raise ValueError(f"vehicle: {vehicle!r} is not one of {', '.join(VEHICLES)}")
     base = load_config(config)
     rng = np.random.RandomState(seed)
     jobs = []
@@ -120,11 +130,13 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                         ground_images)
         if faults:
             cfg = with_drawn_fault(cfg, i, faults, seed)
-        jobs.append((i, cfg.model_dump(mode="json"), out_dir))
+        jobs.append((i, cfg.model_dump(mode="json"), out_dir, vehicle))
     ex = make_executor(executor, workers=workers, address=address) \
         if isinstance(executor, str) else executor
     store = None if out_dir is None else \
-        RunStore.open(out_dir, seed=seed, base_cfg=base.model_dump(mode="json"))
+        RunStore.open(out_dir, seed=seed, base_cfg={  # another vehicle: another campaign
+            **base.model_dump(mode="json"),
+            **({"campaign_vehicle": vehicle} if vehicle != "simulated" else {})})
     results: list[dict[str, Any]] = []
     if store is not None:
         stored = {j[0]: store.finished(j[0], j[1]) for j in jobs}

@@ -24,10 +24,14 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
                    "kind1,kind2 (docs/faults.md); exit 1 when a run misses its expected outcome")
     p.add_argument("--ground-images", metavar="DIR", help="draw each run's ground from the "
                    "NAME.jpg|png photos of DIR, each with NAME.yaml holding m_per_px")
+    p.add_argument("--vehicle", choices=("simulated", "emulator"), default="simulated",
+                   help="simulated: virtual time; emulator: each run in real time through "
+                   "MAVSDK against its own `sitl-vehicle` process, link faults on its UDP path")
 
 
 def _campaign(args: argparse.Namespace) -> int:
     from eaglemission.missions.campaign import print_summary, run_campaign
+    from eaglemission.missions.campaign_emulator import EMULATOR_KINDS, emulator_kinds
     from eaglemission.missions.campaign_executors import CampaignExecutorError
     from eaglemission.missions.campaign_faults import parse_kinds, print_fault_table
     from eaglemission.missions.campaign_resume import CampaignResumeError
@@ -39,6 +43,9 @@ def _campaign(args: argparse.Namespace) -> int:
     if args.faults is not None:
         try:
             kinds = parse_kinds(args.faults)
+            if args.vehicle == "emulator":
+                kinds = (list(EMULATOR_KINDS) if args.faults.strip() == "all"
+                         else emulator_kinds(kinds))
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
@@ -57,7 +64,7 @@ def _campaign(args: argparse.Namespace) -> int:
         summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
                                workers=args.workers, out_dir=args.out, progress=True,
                                executor=args.executor, address=args.address, faults=kinds,
-                               ground_images=ground_images)
+                               ground_images=ground_images, vehicle=args.vehicle)
     except (CampaignExecutorError, CampaignResumeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

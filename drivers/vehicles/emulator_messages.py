@@ -197,6 +197,13 @@ BUILDERS: dict[str, Builder] = {
 }
 """Message name -> builder (None from a builder: nothing to send now)."""
 
+SAMPLED = frozenset({"ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT",
+                     "LOCAL_POSITION_NED", "DISTANCE_SENSOR"})
+"""Streams of an estimator / sensor sample stamped ``time_boot_ms``: PX4 sends one only when a
+new sample exists, so never two with the same stamp (0 of 43,803 ATTITUDE_QUATERNION in the
+recorded v1.16 tlogs); the emulator skips a due one whose stamp has not moved (its simulation
+may lag the wall-time schedule on a loaded machine)."""
+
 
 class Streams:
     """Which message is due when: PX4's stream rates, changed by SET_MESSAGE_INTERVAL (wall
@@ -207,9 +214,11 @@ class Streams:
             name: (1.0 / hz if hz > 0 else math.inf) for name, hz in rates_hz.items()}
         self._next_due: dict[str, float] = {}
         self._last_sent: dict[str, float] = {}
+        self._sampled_ms: dict[str, int] = {}  # the stamp each SAMPLED stream last went out with
 
-    def due(self, wall: float) -> list[str]:
-        """The messages to send now (the schedule moves on)."""
+    def due(self, wall: float, boot_ms: int | None = None) -> list[str]:
+        """The messages to send now (the schedule moves on); with ``boot_ms``, a SAMPLED one
+        whose stamp has not moved since it last went out is skipped (PX4 sends none)."""
         out = []
         for name, interval in self.intervals.items():
             if not math.isfinite(interval):
@@ -219,6 +228,10 @@ class Streams:
                 self._next_due[name] = wall + (interval if name != "HEARTBEAT" else 0.0)
                 continue
             if wall >= due:
+                if name in SAMPLED and boot_ms is not None:
+                    if self._sampled_ms.get(name) == boot_ms:
+                        continue  # still due: it goes out once a new sample exists
+                    self._sampled_ms[name] = boot_ms
                 out.append(name)
                 self._last_sent[name] = wall
                 nxt = due + interval

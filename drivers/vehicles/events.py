@@ -11,4 +11,5 @@ EVENT_GRIPPER = "gripper"  # grab / release; data: action
 EVENT_LINK = "link"  # link lost / regained; data: ok
 EVENT_FAILOVER = "failover"  # offboard setpoints lost longer than the autopilot allows; data: gap_s, offboard_loss_timeout_s
 EVENT_FAULT = "fault"  # a fault was injected (sim only); data: fault, duration_s
+EVENT_TIME_BASE = "time_base"  # a telemetry stamp refused (copy, older) or re-anchored (clock jump); data: problem, stream
 EVENT_WATCHDOG = "watchdog"  # the offboard watchdog commanded HOLD; data: age_s

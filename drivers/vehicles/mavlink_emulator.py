@@ -470,7 +470,7 @@ class Px4Emulator:
             self.heartbeat_due = False
             self.send("HEARTBEAT")
             self.streams.sent_now("HEARTBEAT", wall)
-        for name in self.streams.due(wall):
+        for name in self.streams.due(wall, self.boot_ms()):
             self.send(name)
         reached = self.autopilot.mission.reached
         if (self.autopilot.mode == FlightMode.MISSION and reached >= 0

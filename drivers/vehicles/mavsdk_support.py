@@ -90,6 +90,11 @@ class MavsdkVehicleConfig(BaseModel):
     confirm_timeout_s: Annotated[float, Field(gt=0, le=60)] = 3.0
     """How long an accepted mode / arming command may take to show in the HEARTBEAT (PX4: at
     its next 1 Hz HEARTBEAT, <= 1.05 s recorded; 3 s leaves a lost HEARTBEAT's margin)."""
+    fault_relay: bool = False
+    """Testing only: a loopback UDP relay between the autopilot and MAVSDK
+    (:mod:`.link_relay`) carries the ``faults:`` section's link kinds (link_loss, link_delay,
+    link_duplicate, link_reorder, autopilot_clock_jump) in real time; needs a ``udpin://`` URL
+    (the relay takes that address, MAVSDK a free loopback port)."""
     disarm_after_landing_timeout_s: Annotated[float, Field(gt=0, le=60)] = 5.0
     """After touchdown is reported (``in_air`` False), how long to wait for PX4's own
     auto-disarm (recorded: "Disarmed by landing" 2.02 s after "Landing detected"

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import time
@@ -19,11 +20,14 @@ from eaglemission.drivers.vehicles.events import (
     EVENT_MISSION,
     EVENT_MODE,
     EVENT_STATUS,
+    EVENT_TIME_BASE,
 )
 from eaglemission.drivers.vehicles.mavsdk_support import MavsdkVehicleConfig, downward_range_m
 
+from eaglemission.errors import VehicleError
 from eaglemission.geometry import geodetic_to_ned
 from eaglemission.telemetry import TelemetryHistory
+from eaglemission.telemetry_time import CLOCK_JUMP, TelemetryTimeCheck, Verdict
 from eaglemission.types import XYZ, FlightMode, GeoPoint, MissionProgress, Quat, VehicleState
 
 log = logging.getLogger(__name__)
@@ -43,6 +47,8 @@ class TelemetryCache:
     local_t_ns: int = 0
     attitude_q: Quat = (1.0, 0.0, 0.0, 0.0)
     attitude_t_ns: int = 0
+    attitude_autopilot_ns: int | None = None  # ATTITUDE_QUATERNION.time_boot_ms (MAVSDK's stamp)
+    stamp_floor: tuple[int, int] | None = None  # (receipt, autopilot) of the newest state served
     rates: XYZ = (0.0, 0.0, 0.0)
     geodetic: GeoPoint | None = None
     relative_alt_m: float = math.nan
@@ -77,6 +83,8 @@ class MavsdkTelemetry:
         self._event = event
         self._on_mode_hook = on_mode
         self.on_gap: Callable[[float], None] | None = None  # (seconds between position samples)
+        self.stamps = TelemetryTimeCheck()  # every attitude sample's autopilot stamp
+        self._stamp_reported: dict[str, int] = {}
 
     def start(self, telemetry: Any, mission: Any, now_ns: Callable[[], int],
               mav_flight_mode: Any) -> list[asyncio.Task[None]]:
@@ -140,9 +148,47 @@ class MavsdkTelemetry:
 
     def _on_attitude(self, t: int, q: Any) -> None:
         c = self.cache
+        stamp_ns = int(getattr(q, "timestamp_us", 0) or 0) * 1000 or None
+        if stamp_ns is not None:
+            verdict = self.stamps.check_stamps(t, stamp_ns)
+            if verdict.problem:
+                self._report_stamp(t, verdict)
+            if not verdict.accepted:  # a copy or an older sample: the cache keeps the newest
+                return
+            if verdict.problem == CLOCK_JUMP:
+                c.stamp_floor = None
         c.attitude_q = (q.w, q.x, q.y, q.z)
         c.attitude_t_ns = c.last_sample_ns = t
+        c.attitude_autopilot_ns = stamp_ns
         self._append_state(t)
+
+    def _report_stamp(self, t: int, verdict: Verdict) -> None:
+        """A refused or re-anchored attitude stamp as a ``time_base`` event (once a second per
+        problem: a duplicating link would log every message)."""
+        last = self._stamp_reported.get(verdict.problem)
+        if last is not None and t - last < 1_000_000_000:
+            return
+        self._stamp_reported[verdict.problem] = t
+        self._event(EVENT_TIME_BASE, f"{verdict.problem}: {verdict.text}",
+                    {"problem": verdict.problem, "stream": "attitude_quaternion"})
+
+    def stamp_at(self, t: int) -> int | None:
+        """The autopilot time of a state built at receipt time ``t``
+        (:func:`autopilot_time_ns`), never back nor equal from one newer state served to the
+        next (the streams' receipt jitter would otherwise read as a reordered link)."""
+        c = self.cache
+        ap = autopilot_time_ns(c, t)
+        if ap is None:
+            return None
+        floor = c.stamp_floor
+        if floor is not None:
+            if t == floor[0]:
+                return floor[1]
+            if t < floor[0]:
+                return ap
+            ap = max(ap, floor[1] + 1)
+        c.stamp_floor = (t, ap)
+        return ap
 
     def _on_rates(self, t: int, r: Any) -> None:
         self.cache.rates = (r.roll_rad_s, r.pitch_rad_s, r.yaw_rad_s)
@@ -261,6 +307,7 @@ class MavsdkTelemetry:
         link_ok = (self.now_ns() - c.last_sample_ns) * 1e-9 < self.config.link_timeout_s
         rel = c.relative_alt_m if math.isfinite(c.relative_alt_m) else -pos[2]
         return VehicleState(
+            autopilot_time_ns=self.stamp_at(t),
             timestamp_ns=t, position_ned_m=pos, velocity_ned_mps=v, attitude_q=c.attitude_q,
             angular_velocity_frd_radps=c.rates, geodetic=c.geodetic, relative_altitude_m=rel,
             home=c.home, armed=c.armed, in_air=c.in_air, flight_mode=c.mode,
@@ -301,3 +348,33 @@ class MavsdkTelemetry:
     def truth_flags(self) -> tuple[bool, bool, FlightMode]:
         c = self.cache
         return c.armed, c.in_air, c.mode
+
+
+AUTOPILOT_STAMP_SPAN_NS = 200_000_000
+"""How far past the last attitude sample its autopilot stamp is carried (receipt time)."""
+
+
+def autopilot_time_ns(c: TelemetryCache, t: int) -> int | None:
+    """The autopilot's time of a state built at receipt time ``t``: the last attitude sample's
+    ``time_boot_ms`` (the only stream MAVSDK stamps) plus the receipt time since it; None
+    without one or when it is more than :data:`AUTOPILOT_STAMP_SPAN_NS` old."""
+    if c.attitude_autopilot_ns is None or not 0 <= t - c.attitude_t_ns <= AUTOPILOT_STAMP_SPAN_NS:
+        return None
+    return c.attitude_autopilot_ns + (t - c.attitude_t_ns)
+
+
+async def request_rates(vehicle: Any) -> None:
+    """Ask for the telemetry rates of ``vehicle``'s config (a refused rate is only logged:
+    telemetry still flows at the autopilot's own rate)."""
+    tel, cfg = vehicle.plugins["Telemetry"], vehicle.config
+    fast = cfg.telemetry_rate_hz
+    for name, hz in (("position", fast), ("position_velocity_ned", fast),
+                     ("attitude_quaternion", fast), ("in_air", cfg.state_rate_hz),
+                     ("home", 1.0), ("distance_sensor", cfg.distance_sensor_rate_hz)):
+        if hz <= 0:
+            continue
+        setter = functools.partial(getattr(tel, f"set_rate_{name}"), hz)
+        try:
+            await vehicle.bounded(f"set_rate_{name}()", setter)
+        except VehicleError as exc:
+            log.warning("telemetry rate not set: %s", exc)

@@ -60,6 +60,7 @@ from eaglemission.drivers.vehicles.events import (
 )
 from eaglemission.drivers.vehicles.failover_watch import PX4_DEFAULT_OFFBOARD_LOSS_S, FailoverWatch
 from eaglemission.drivers.vehicles.hil_truth import HilTruth
+from eaglemission.drivers.vehicles.link_relay import LinkFaultRelay
 from eaglemission.drivers.vehicles.mavsdk_offboard import OffboardSession
 from eaglemission.drivers.vehicles.mavsdk_session import MavsdkSession
 from eaglemission.drivers.vehicles.mavsdk_support import (
@@ -72,7 +73,7 @@ from eaglemission.drivers.vehicles.mavsdk_support import (
     step_towards,
     thread_safe_now,
 )
-from eaglemission.drivers.vehicles.mavsdk_telemetry import MavsdkTelemetry
+from eaglemission.drivers.vehicles.mavsdk_telemetry import MavsdkTelemetry, request_rates
 
 from eaglemission.clock import Clock, MonotonicClock, VirtualTimeLoop
 from eaglemission.config import GeofenceConfig, SafetyConfig
@@ -127,6 +128,8 @@ class MavsdkVehicle:
         self._now_ns: Callable[[], int] = time.monotonic_ns
         self._truth = HilTruth(self.telemetry.truth_flags) if cfg.ground_truth == "auto" else None
         self._truth_handle: Any = None
+        self.link_faults = LinkFaultRelay(cfg.url) if cfg.fault_relay else None
+        """The relay injecting ``faults:`` link kinds (``fault_relay: true``), else None."""
         self.failover = FailoverWatch(lambda: self._offboard.active, self.event,
                                       cfg.offboard_loss_timeout_s or PX4_DEFAULT_OFFBOARD_LOSS_S)
         self.telemetry.on_gap = self.failover.on_gap
@@ -166,6 +169,9 @@ class MavsdkVehicle:
                                "raw:// needs a `mavlink_peer` in the context (e.g. the emulator)")
         t0 = time.monotonic()
         try:
+            if self.link_faults is not None:  # MAVSDK listens behind the relay
+                url = self.link_faults.start()
+                self.session.config = cfg.model_copy(update={"url": url})
             found = await self.session.open(scheme, cfg.connect_timeout_s)
         except BaseException:
             await self._teardown()
@@ -185,7 +191,7 @@ class MavsdkVehicle:
         self._tasks = self.telemetry.start(self.plugins["Telemetry"], self.plugins["Mission"],
                                            self._now_ns, self.mavsdk["MavFlightMode"])
         self._offboard.watchdog.start()
-        await self._request_rates()
+        await request_rates(self)
         await mavsdk_arming.request_truth(self)
         if cfg.offboard_loss_timeout_s is None:
             await self.failover.read_timeout(self.get_param)
@@ -217,6 +223,8 @@ class MavsdkVehicle:
         self._tasks = []
         self._offboard.task = None
         await self.session.shutdown(grace_s, lambda: self._offboard.watchdog.running)
+        if self.link_faults is not None:
+            self.link_faults.stop()
 
     @property
     def plugins(self) -> dict[str, Any]:
@@ -237,20 +245,6 @@ class MavsdkVehicle:
         if not self._connected:
             raise VehicleError("NO_SYSTEM", origin, None,
                                "not connected: call `await vehicle.connect()` (or use `async with`)")
-
-    async def _request_rates(self) -> None:
-        tel = self.plugins["Telemetry"]
-        fast = self.config.telemetry_rate_hz
-        for name, hz in (("position", fast), ("position_velocity_ned", fast),
-                         ("attitude_quaternion", fast), ("in_air", self.config.state_rate_hz),
-                         ("home", 1.0), ("distance_sensor", self.config.distance_sensor_rate_hz)):
-            if hz <= 0:
-                continue
-            setter = functools.partial(getattr(tel, f"set_rate_{name}"), hz)
-            try:
-                await self.bounded(f"set_rate_{name}()", setter)
-            except VehicleError as exc:  # the autopilot may not honour it: telemetry still flows
-                log.warning("telemetry rate not set: %s", exc)
 
     def ground_truth(self) -> HilTruth | None:
         """Simulator ground truth (HIL_STATE_QUATERNION), None with ``ground_truth: off``;

@@ -74,6 +74,15 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
+def has_link_faults(data: dict[str, Any]) -> bool:
+    """A mission document whose ``faults:`` section injects a link kind (the emulator's UDP
+    path carries them through the mavsdk vehicle's fault relay)."""
+    from eaglemission.fault_injection import LINK_KINDS
+
+    inject = (data.get("faults") or {}).get("inject") or []
+    return any(isinstance(f, dict) and f.get("kind") in LINK_KINDS for f in inject)
+
+
 @contextlib.contextmanager
 def emulator_process(mission_path: str, status_json: str | None = None) -> Iterator[str]:
     """Start ``eaglemission sitl-vehicle`` for a mission file on a free port, as its own
@@ -244,7 +253,8 @@ def _run(args: argparse.Namespace) -> int:
                 path, tmp = _mission_file_path(args.config)
                 url = stack.enter_context(emulator_process(path))
                 data["vehicle"] = {"type": "mavsdk",
-                                   "params": {"url": url, "connect_timeout_s": 30}}
+                                   "params": {"url": url, "connect_timeout_s": 30,
+                                              "fault_relay": has_link_faults(data)}}
             try:
                 cfg = MissionFile.model_validate(data)
             except ValueError as exc:
