@@ -248,3 +248,49 @@ def test_field_path_on_the_gentl_test_producer_and_the_emulator(tmp_path: Path) 
     north = [r["position_ned_m"][0] for r in recs if r["kind"] == "telemetry"]
     assert max(north) > 10.0 and abs(final["true_position_ned_m"][0]) < 2.0
     assert p.returncode == 3, p.stdout[-2000:] + p.stderr[-2000:]
+
+
+def test_link_faults_travel_the_emulators_udp_path_in_real_time(tmp_path: Path) -> None:
+    """``run --vehicle emulator`` with link faults: the mavsdk vehicle's fault relay duplicates,
+    reorders and re-stamps the real MAVLink traffic; the driver and the mission notice each
+    and the flight still completes (all three are tolerable: docs/faults.md)."""
+    binned = {"resolution_px": [640, 480], "pixel_size_um": 7.5}
+    base = yaml.safe_load((REPO / "configs" / "sitl_synthetic.yaml").read_text())
+    cams = {c: {**v, **binned} for c, v in base["cameras"].items()}
+    mission = mission_file(tmp_path, "faults.yaml", cameras={"_replace": True, **cams},
+                           detector={"params": {"preset": "field", "use_dynamic": False,
+                                                "downscale": 1}},
+                           faults={"inject": [
+                               {"kind": "link_duplicate", "at_state": "CRUISE", "delay_s": 0.5,
+                                "duration_s": 1.5},
+                               {"kind": "link_reorder", "at_state": "CRUISE", "delay_s": 2.5,
+                                "duration_s": 1.5},
+                               {"kind": "autopilot_clock_jump", "at_state": "CRUISE",
+                                "delay_s": 4.5, "duration_s": 1.0, "size": -20.0}]})
+    p = subprocess.run(cli("run", str(mission), "--vehicle", "emulator", "--log", "run.jsonl"),
+                       cwd=tmp_path, capture_output=True, text=True, timeout=400, env=run_env())
+    assert "Traceback" not in p.stderr, p.stderr
+    recs = log_records(tmp_path / "run.jsonl")
+    states = _states(recs)
+    assert "GRASP_READY" in states and states[-1] == "DONE", (states, p.stdout[-2000:])
+    assert p.returncode == 0, p.stdout[-3000:]
+    injected = [r["fault"] for r in recs if r["kind"] == "fault_injected"]
+    assert injected == ["link_duplicate", "link_reorder", "autopilot_clock_jump"]
+    t_dup = next(r["t_ns"] for r in recs if r.get("fault") == "link_duplicate")
+    seen = {r["data"]["problem"] for r in recs if r["kind"] == "event"
+            and r.get("event_kind") == "time_base" and r["t_ns"] >= t_dup}
+    assert {"telemetry_duplicate", "telemetry_out_of_order"} <= seen, seen
+    assert any(r["kind"] == "fault_detected" and r["what"] == "autopilot_clock_jump"
+               for r in recs), "the mission re-anchors on the jump"
+    ev = [r for r in recs if r["kind"] == "evaluation"][-1]
+    assert ev["judged_on"] == "truth" and ev["landed"] and not ev["violations"], ev
+
+
+def test_a_world_fault_is_refused_on_the_emulator_with_its_path(tmp_path: Path) -> None:
+    mission = mission_file(tmp_path, "gps.yaml", faults={"inject": [
+        {"kind": "gps_loss", "at_s": 5.0, "duration_s": 2.0}]})
+    p = subprocess.run(cli("run", str(mission), "--vehicle", "emulator"), cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120, env=run_env())
+    out = p.stdout + p.stderr
+    assert p.returncode == 2, out[-2000:]
+    assert "faults.inject.0.kind" in out and "gps_loss" in out and "Traceback" not in out
