@@ -181,7 +181,8 @@ class SimulatedVehicle(SimulatedModel):
                     "MODE_CHANGED", "set_setpoint()", (setpoint,),
                     f"the flight mode is now {ap.mode.value} (changed by the pilot or a "
                     "failsafe): our offboard control has ended; call start_offboard() to take it back")
-            ap.set_setpoint(setpoint)
+            if not self.link.send_setpoint(setpoint, self.clock.now_ns()):
+                ap.set_setpoint(setpoint)  # else it arrives delay_s later (link_delay)
 
     async def stop_offboard(self) -> None:
         await self._command("stop_offboard")
@@ -283,7 +284,8 @@ class SimulatedVehicle(SimulatedModel):
         self.faults.inject_wind_gust(north_mps, east_mps, duration_s)
 
     def inject_link_delay(self, delay_s: float, duration_s: float) -> None:
-        """Delay telemetry and command answers by ``delay_s`` for ``duration_s``."""
+        """Delay telemetry, command answers and streamed setpoints by ``delay_s`` for
+        ``duration_s`` (``state_at`` sees only the samples received)."""
         with self._lock:
             dyn = self._sync()
             self.link.inject_delay(dyn.time_ns, delay_s, duration_s)

@@ -125,7 +125,7 @@ class SimulatedModel:
         self._events: list[VehicleEvent] = []
         self._waypoints: tuple[Waypoint, ...] = ()
         self.faults = SimulatedFaults(self)
-        self.link = LinkTiming(self._history)
+        self.link = LinkTiming(self._history, TelemetryHistory(span_s=cfg.history_span_s))
         self._boot_ns = 0  # host time of the autopilot's boot (its timestamps count from it)
         self._tel_period_ns = int(round(1e9 / cfg.telemetry_rate_hz))
         self._next_tel_ns = 0
@@ -182,10 +182,12 @@ class SimulatedModel:
             return self.link.deliver(latest, self.clock.now_ns())
 
     def state_at(self, timestamp_ns: int) -> VehicleState | None:
+        """The pose at a host time from the samples received by now (see :mod:`.simulated_link`)."""
         self._require("state_at()")
         with self._lock:
             self._sync()
-        return self._history.state_at(timestamp_ns)
+            self.link.receive_due(self.clock.now_ns())
+        return self.link.ground.state_at(timestamp_ns)
 
     def events(self) -> Sequence[VehicleEvent]:
         with self._lock:
@@ -277,6 +279,9 @@ class SimulatedModel:
             faults.on_step(t)
         ap = self._ap
         assert ap is not None  # built with the dynamics
+        setpoint = self.link.due_setpoint(t)  # a streamed setpoint arriving late (link_delay)
+        if setpoint is not None and not faults.link_down:
+            ap.set_setpoint(setpoint)
         ap.on_step(dyn)
         self._truth.append(dyn, armed=ap.armed, in_air=ap.land_detector.in_air, mode=ap.mode)
         if t >= self._next_tel_ns:
@@ -292,8 +297,10 @@ class SimulatedModel:
         rf = self.config.rangefinder
         noise = self._rangefinder_noise.next() if rf.enabled else 0.0
         state = estimated_state(dyn, self.autopilot, self.home, rf, noise)
-        self._history.append(replace(state, autopilot_time_ns=dyn.time_ns - self._boot_ns
-                                     + self.link.clock_offset_ns))
+        sample = replace(state, autopilot_time_ns=dyn.time_ns - self._boot_ns
+                         + self.link.clock_offset_ns)
+        self._history.append(sample)
+        self.link.send(sample)
 
     def _truth_vehicle_state(self, t: int, pos: XYZ, vel: XYZ, *, attitude_q: Quat,
                              armed: bool | None = None, in_air: bool | None = None,

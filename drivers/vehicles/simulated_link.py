@@ -6,7 +6,11 @@ Without a fault the newest telemetry sample is delivered as it is. While one is 
 
 * ``link_delay``: the newest sample sent at least ``delay_s`` ago (the link is a queue: never
   one older than the last delivered), stamped on receipt ``delay_s`` after it was sent;
-  commands are answered ``delay_s`` later;
+  commands are answered ``delay_s`` later; streamed setpoints reach the autopilot ``delay_s``
+  after they were sent, in order (:meth:`LinkTiming.send_setpoint`); the ground's history
+  (:attr:`LinkTiming.ground`, what ``state_at`` reads) holds only the samples received,
+  stamped on receipt. After the window a fresh sample or setpoint goes straight through and
+  overtakes the ones still in flight (dropped: never an older one after a newer one);
 * ``link_duplicate``: every message arrives twice (the copy with a later receipt stamp);
 * ``link_reorder``: every message overtakes the one before it (which arrives after it);
 * ``autopilot_clock_jump``: the autopilot's timestamps (``autopilot_time_ns``) jump by
@@ -16,10 +20,11 @@ Without a fault the newest telemetry sample is delivered as it is. While one is 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
 
 from eaglemission.telemetry import TelemetryHistory
-from eaglemission.types import VehicleState
+from eaglemission.types import Setpoint, VehicleState
 
 
 def _window_ns(duration_s: float, origin: str) -> int:
@@ -31,8 +36,11 @@ def _window_ns(duration_s: float, origin: str) -> int:
 class LinkTiming:
     """Timing faults of one simulated vehicle's link (see the module docstring)."""
 
-    def __init__(self, history: TelemetryHistory) -> None:
-        self._history = history
+    def __init__(self, history: TelemetryHistory, ground: TelemetryHistory) -> None:
+        self._history = history  # the samples sent (stamped when sent)
+        self.ground = ground  # the samples received (stamped on receipt): what state_at reads
+        self._in_flight: deque[VehicleState] = deque()  # sent, not received (receipt stamps)
+        self._setpoints: deque[tuple[int, Setpoint]] = deque()  # in flight: (due_ns, setpoint)
         self.clock_offset_ns = 0
         self._delay_ns = 0
         self._delay_until_ns = -1
@@ -65,6 +73,47 @@ class LinkTiming:
     def command_delay_s(self, now_ns: int) -> float:
         """How much later than without the fault a command is answered."""
         return self._delay_ns * 1e-9 if now_ns < self._delay_until_ns else 0.0
+
+    def send(self, sample: VehicleState) -> None:
+        """A telemetry sample leaves the vehicle (at its stamp): received at once, or
+        ``delay_s`` later while a delay is injected."""
+        sent_ns = sample.timestamp_ns
+        self.receive_due(sent_ns)
+        if sent_ns >= self._delay_until_ns:
+            self._in_flight.clear()  # overtaken by this fresh sample (as state() jumps to it)
+            self.ground.append(sample)
+            return
+        receipt_ns = sent_ns + self._delay_ns
+        if self._in_flight:  # a queue: received in the order sent
+            receipt_ns = max(receipt_ns, self._in_flight[-1].timestamp_ns)
+        self._in_flight.append(replace(sample, timestamp_ns=receipt_ns))
+
+    def receive_due(self, now_ns: int) -> None:
+        """Take the samples received by ``now_ns`` into :attr:`ground`."""
+        in_flight = self._in_flight
+        while in_flight and in_flight[0].timestamp_ns <= now_ns:
+            self.ground.append(in_flight.popleft())
+
+    def send_setpoint(self, setpoint: Setpoint, now_ns: int) -> bool:
+        """Queue a streamed setpoint sent at ``now_ns`` while a delay is injected (True).
+        False: no delay, it goes straight through (and overtakes those still in flight)."""
+        queue = self._setpoints
+        if now_ns >= self._delay_until_ns:
+            queue.clear()
+            return False
+        due_ns = now_ns + self._delay_ns
+        while queue and queue[-1][0] >= due_ns:
+            queue.pop()  # overtaken (a shorter delay injected since): never delivered after it
+        queue.append((due_ns, setpoint))
+        return True
+
+    def due_setpoint(self, now_ns: int) -> Setpoint | None:
+        """The newest setpoint in flight due by ``now_ns`` (the older due ones are stale)."""
+        queue = self._setpoints
+        newest = None
+        while queue and queue[0][0] <= now_ns:
+            newest = queue.popleft()[1]
+        return newest
 
     def deliver(self, latest: VehicleState, now_ns: int) -> VehicleState:
         """The message a reader gets at ``now_ns`` when ``latest`` is the newest sample sent."""
