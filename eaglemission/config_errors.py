@@ -21,8 +21,10 @@ def _path(loc: tuple[Any, ...], prefix: str = "") -> str:
                 parts.append(f"[{item}]")
         elif item in ("function-after", "function-before"):
             continue
-        else:
-            parts.append(str(item))
+        else:  # a key that cannot print as one plain word (empty, blank, a newline) is quoted
+            text = str(item)
+            parts.append(text if text and text.isprintable() and text.strip() == text
+                         else repr(text))
     return ".".join(parts) or "<top level>"
 
 

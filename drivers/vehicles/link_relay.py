@@ -85,10 +85,11 @@ def shift_stamps(data: bytes, jump_us: int, parser: Any, packer: Any) -> bytes:
         if "time_boot_ms" not in fields and "time_usec" not in fields:
             out += m.get_msgbuf()
             continue
+        # unsigned counters: a jump back past zero wraps, as the autopilot's own counter would
         if "time_boot_ms" in fields:
-            m.time_boot_ms = max(0, min(2**32 - 1, int(m.time_boot_ms) + jump_us // 1000))
+            m.time_boot_ms = (int(m.time_boot_ms) + jump_us // 1000) % 2**32
         if "time_usec" in fields:
-            m.time_usec = max(0, min(2**64 - 1, int(m.time_usec) + jump_us))
+            m.time_usec = (int(m.time_usec) + jump_us) % 2**64
         packer.seq, packer.srcSystem = m.get_seq(), m.get_srcSystem()
         packer.srcComponent = m.get_srcComponent()
         out += m.pack(packer)

@@ -79,3 +79,10 @@ def test_invalid_world_params_are_reported_once_by_the_world_not_by_the_camera()
     cfg = resolve_relative_paths(validate_mapping(doc, check_plugins=False, warnings=[]), None)
     problems = plugin_problems(cfg) + checks.run_checks(cfg)
     assert problems == ["world.params.seed: must be an integer, got {'seed': 1}"]
+
+
+@pytest.mark.parametrize("key", ["\n", "", " a", "a\tb"])
+def test_found_a_key_that_cannot_print_as_a_word_is_quoted_in_its_path(key: str) -> None:
+    """Found by the hypothesis run: an unknown key ``"\\n"`` made the problem line
+    ``"\\n: unknown key"``, two lines with an empty path."""
+    assert check_document({key: None}) == "refused"

@@ -266,7 +266,7 @@ def test_link_faults_travel_the_emulators_udp_path_in_real_time(tmp_path: Path) 
                                {"kind": "link_reorder", "at_state": "CRUISE", "delay_s": 2.5,
                                 "duration_s": 1.5},
                                {"kind": "autopilot_clock_jump", "at_state": "CRUISE",
-                                "delay_s": 4.5, "duration_s": 1.0, "size": -20.0}]})
+                                "delay_s": 4.5, "duration_s": 1.0, "size": -5.0}]})
     p = subprocess.run(cli("run", str(mission), "--vehicle", "emulator", "--log", "run.jsonl"),
                        cwd=tmp_path, capture_output=True, text=True, timeout=400, env=run_env())
     assert "Traceback" not in p.stderr, p.stderr
