@@ -58,8 +58,9 @@ class FaultSpec(BaseModel):
         None, description="inject when the mission enters this state (+ delay_s)")
     delay_s: float = Field(0.0, ge=0, description="after entering at_state (s)")
     duration_s: float = Field(1.0, gt=0, le=3600,
-                              description="how long the fault lasts (s); one frame for "
-                                          "corrupted/truncated frames; device loss, clock "
+                              description="how long the fault lasts (s); corrupted/"
+                                          "truncated frames: every frame grabbed in it, at "
+                                          "least one; device loss, clock "
                                           "jumps (camera and autopilot) and a battery "
                                           "drain last to the end")
     size: float | None = Field(None, description="the fault's size (unit per kind, "

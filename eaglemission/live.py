@@ -157,6 +157,23 @@ def thumb_size(width_px: int, height_px: int, max_width_px: int) -> tuple[int, i
     return int(max_width_px), max(1, round(height_px * max_width_px / width_px))
 
 
+def _latched_cameras(items: queue.Queue[tuple[Any, ...] | None]) -> Any:
+    """A server listener: a client subscribing to a calibration or camera-model channel gets
+    the last one at once (else it waits for ``repeat_s``, and a short flight may end first)."""
+    from foxglove.websocket import ChannelView, Client, ServerListener
+
+    class LatchedCameras(ServerListener):
+        def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+            topic = str(channel.topic)
+            if topic.endswith(("/calibration", "/model")):
+                try:
+                    items.put_nowait(("subscribed", topic))
+                except queue.Full:
+                    pass  # the periodic repeat still sends it
+
+    return LatchedCameras()
+
+
 class LiveSink:
     """Serve one flight over the Foxglove WebSocket protocol (see the module docstring).
 
@@ -172,10 +189,13 @@ class LiveSink:
         self.options = options
         self._fg = foxglove
         self._context = foxglove.Context()
+        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(
+            maxsize=max(1, options.queue_items))
         try:
             self._server = foxglove.start_server(
                 name=name, host=options.host, port=options.port, context=self._context,
-                message_backlog_size=options.backlog_messages)
+                message_backlog_size=options.backlog_messages,
+                server_listener=_latched_cameras(self._queue))
         except Exception as exc:  # the SDK raises RuntimeError (FoxgloveError)
             hint = ("another program or flight uses that port: choose another with --live "
                     "HOST:PORT" if "in use" in str(exc) else f"is {options.host} an address "
@@ -189,8 +209,6 @@ class LiveSink:
         self._last_ns: dict[str, int] = {}
         self._image_period_ns = int(1e9 / options.image_hz)
         self._record_period_ns = int(1e9 / options.telemetry_hz)
-        self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue(
-            maxsize=max(1, options.queue_items))
         self._lock = threading.Lock()
         self._log_write: Callable[..., Any] | None = None
         self._drop_reported = False
@@ -306,6 +324,10 @@ class LiveSink:
             _, cid, model, t_ns = item
             self._cameras[cid] = (model, t_ns)
             self._publish_calibration(cid, model, t_ns)
+        elif kind == "subscribed":  # latched: a new subscriber gets the camera's models now
+            for cid, (model, t_ns) in list(self._cameras.items()):
+                if item[1] in (mr.TOPIC_CALIBRATION.format(cid), mr.TOPIC_MODEL.format(cid)):
+                    self._publish_calibration(cid, model, t_ns)
 
     def _publish_calibration(self, cid: str, model: CameraModel, t_ns: int) -> None:
         cal = thumbnail_calibration(model, cid, t_ns, self.options.image_width_px)

@@ -6,6 +6,8 @@ faults where they happen in life, in the camera driver.
   re-delivering a stale buffer);
 * ``corrupted_frame``: a frame of the right size full of noise;
 * ``truncated_frame``: a frame cut short (only the top rows arrived);
+  (these two spoil every frame grabbed in their window, and at least the first one grabbed
+  after they start, however short the window);
 * ``exposure_jump``: the image scaled by a gain (``size``) and clipped;
 * ``camera_device_loss``: :class:`~eaglemission.errors.CameraLost` from then on;
 * ``camera_clock_jump``: frame stamps shifted by ``size`` seconds from then on;
@@ -94,10 +96,10 @@ class FaultyCamera:
         gain = self._on("exposure_jump", now)
         if gain is not None:
             img = np.clip(img.astype(np.float32) * gain.value, 0, 255).astype(np.uint8)
-        if self._on("corrupted_frame", now):
+        if self.faults.frame_fault("corrupted_frame", now, self.camera_id):
             rng = np.random.default_rng(frame.seq)
             img = rng.integers(0, 256, size=img.shape, dtype=np.uint8)
-        if self._on("truncated_frame", now):
+        if self.faults.frame_fault("truncated_frame", now, self.camera_id):
             img = img[: max(1, int(img.shape[0] * 0.6))].copy()
         device_ns = frame.device_timestamp_ns
         jump = self._on("camera_clock_jump", now)

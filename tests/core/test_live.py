@@ -266,3 +266,30 @@ def test_a_stalled_client_never_blocks_the_sink_nor_the_other_clients() -> None:
     got = [json.loads(p)["i"] for _, p in out["rx"].messages.get("/log/event", [])]
     assert got and got[-1] == n - 1  # the reading client followed to the last one
     assert "stalled client" in stats["error"]  # close() did not wait for it
+
+
+def test_a_client_subscribing_late_gets_the_calibration_at_once() -> None:
+    """The calibration was published before the client connected; the periodic repeat is an
+    hour away: the subscription itself brings it (a CI run lost the race without this)."""
+    from eaglemission.geometry import CameraModel
+    from eaglemission.live import LiveSink
+
+    sink = LiveSink(LiveOptions(port=0, repeat_s=3600.0))
+    sink.calibration("wide", CameraModel.from_lens("wide", focal_length_mm=2.8,
+                                                   resolution_px=(1280, 960)), 5)
+    deadline = time.monotonic() + 10.0
+    while sink.stats["messages"] < 2 and time.monotonic() < deadline:  # published, to nobody
+        threading.Event().wait(0.02)
+    assert sink.stats["messages"] == 2
+    client = FoxgloveClient("127.0.0.1", sink.port, timeout_s=5.0)
+    deadline = time.monotonic() + 10.0
+    while "/camera/wide/calibration" not in client.received.messages:
+        assert time.monotonic() < deadline, "no calibration for the late subscriber"
+        try:
+            client.handle(*client.recv())
+        except TimeoutError:
+            continue
+    sink.close()
+    client.close()
+    cal = CameraCalibration.FromString(client.received.messages["/camera/wide/calibration"][0][1])
+    assert cal.frame_id == "wide" and cal.width == 320
