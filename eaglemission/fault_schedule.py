@@ -57,6 +57,8 @@ class ActiveFaults:
         """The fault of ``kind`` (one of :data:`FRAME_FAULTS`) that spoils ``camera_id``'s frame
         grabbed now: one whose window covers now, or one started that has not yet spoiled a
         frame of this camera."""
+        if kind not in FRAME_FAULTS:
+            raise ValueError(f"{kind!r} is not a frame fault ({', '.join(sorted(FRAME_FAULTS))})")
         with self._lock:
             for i, f in enumerate(self._faults):
                 if f.spec.kind != kind or f.start_ns > now_ns:
