@@ -163,7 +163,8 @@ POLICIES: dict[MissionState, StatePolicy] = {
                                offboard=True, airborne=True, confirms=True, reacquires=True,
                                predicts=True,
                                camera_watch=True, timeout_field="target_lost_s",
-                               on_enter=("clear_confirmation", "hold_carrot")),
+                               on_enter=("count_loss", "clear_confirmation",
+                                         "hold_carrot")),
     S.DONE: StatePolicy(on_enter=("final_done",)),
     S.FAILSAFE: StatePolicy(on_enter=("final_failsafe",)),
 }
@@ -217,6 +218,11 @@ class Snapshot:
     grasp_required_frames: int = 5
     grasp_done: bool = False
     search_exhausted: bool = False
+    candidate_rejected: bool = False
+    """The loss that entered TARGET_LOST was ``max_target_losses``-th near one place: that
+    candidate is rejected (``TargetTracking.count_loss``)."""
+    target_losses: int = 0
+    """Losses counted near the place of the latest one."""
     on_target_lost: str = "resume_cruise"
     # faults (the runner fills them from telemetry, the cameras and the envelope)
     link_lost_s: float = 0.0
@@ -284,7 +290,8 @@ def target_reacquired(s: Snapshot) -> bool:
 
 
 def lost_resumes_cruise(s: Snapshot) -> bool:
-    return s.search_exhausted and s.on_target_lost == "resume_cruise"
+    """The search ran out, or the candidate was rejected: search the route again."""
+    return (s.search_exhausted or s.candidate_rejected) and s.on_target_lost == "resume_cruise"
 
 
 def route_finished(s: Snapshot) -> bool:
@@ -336,8 +343,9 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
              params: ApproachConfig) -> Abort | None:
     """The failsafe that applies in ``state`` (pure; first match in priority order).
 
-    Priority: the operator's interrupt, link loss, autopilot failover, GPS loss, low battery, pilot mode change, camera failure, geofence,
-    refused command, state timeout, route end without target. On the ground (PREFLIGHT) the
+    Priority: the operator's interrupt, link loss, autopilot failover, GPS loss, low battery,
+    pilot mode change, camera failure, geofence, refused command, a rejected candidate (when
+    ``on_target_lost`` is not ``resume_cruise``), state timeout, route end without target. On the ground (PREFLIGHT) the
     action is ``none``: the vehicle is never armed.
     """
     if state in FINAL_STATES:
@@ -367,6 +375,9 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
         return Abort("the approach goal lies outside the geofence", act(params.geofence_action))
     if s.command_failed:
         return Abort(f"command failed: {s.command_failed}", act(params.timeout_action))
+    if state is S.TARGET_LOST and s.candidate_rejected and params.on_target_lost != "resume_cruise":
+        return Abort(f"target lost {s.target_losses} times at one place: candidate rejected",
+                     act(params.on_target_lost))
     if state_timed_out(s):
         if state is S.TARGET_LOST:
             if params.on_target_lost == "resume_cruise":

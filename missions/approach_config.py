@@ -94,6 +94,11 @@ class ApproachConfig(BaseModel):
                                "core must have the target's chromaticity (not in the paper)")
     yaw_rate_degps: float = Field(45.0, gt=0, description="yaw rate of the setpoints")
     search_radius_m: float = Field(2.0, ge=0, description="TARGET_LOST search circle radius")
+    max_target_losses: int = Field(3, ge=1, le=1000, description="the target lost this many "
+                                   "times near one place rejects that candidate: its estimates "
+                                   "are ignored and `on_target_lost` applies at once (a "
+                                   "distractor the fine approach keeps refusing; not in the "
+                                   "paper)")
     takeoff_tolerance_m: float = Field(0.3, gt=0)
     min_telemetry_hz: float = Field(10.0, gt=0)
     vertical_reference: Literal["ground", "estimate", "hybrid"] = Field(

@@ -196,6 +196,9 @@ class MissionRunner:
     def _enter_arm_takeoff(self, now: int) -> None:
         self.actuator.submit("arm_takeoff")
 
+    def _enter_count_loss(self, now: int) -> None:
+        self.track.count_loss()
+
     def _enter_clear_confirmation(self, now: int) -> None:
         self.track.confirm = []
 
@@ -228,7 +231,6 @@ class MissionRunner:
         self.actuator.submit("grasp")
 
     def _enter_hold_carrot(self, now: int) -> None:
-        self.track.confirm = []
         self.guidance.start_search(self.vehicle.state().position_ned_m, now)
 
     def _enter_final_done(self, now: int) -> None:
@@ -271,11 +273,8 @@ class MissionRunner:
         if target is not None and state is not None and pol.predicts:
             px = project_target(model, state, target)
             predicted = (float(px[0]), float(px[1]))
-        role = None
-        if pol.estimator == "coarse" and cam_id == CAMERA_WIDE:
-            role = "coarse"
-        elif pol.estimator == "fine" and cam_id == self.track.choice.fine_camera:
-            role = "fine"
+        serves = {"coarse": CAMERA_WIDE, "fine": self.track.choice.fine_camera}  # which camera
+        role = pol.estimator if pol.estimator and serves[pol.estimator] == cam_id else None
         return Request(frame, model, state, role, predicted, pol.close_range, self.track.fit_hint,
                        self.track.plane_state(frame.timestamp_ns))
 
@@ -358,6 +357,7 @@ class MissionRunner:
             grasp_required_frames=self.p.grasp_stable_frames, grasp_done=act.grasp_done,
             search_exhausted=(pol.goal is Goal.SEARCH
                               and in_state_s > self.p.timeouts.target_lost_s),
+            candidate_rejected=self.track.just_rejected, target_losses=self.track.last_losses,
             on_target_lost=self.p.on_target_lost, link_lost_s=self.telemetry.link_lost_s(now),
             link_loss_timeout_s=self.cfg.safety.link_loss_timeout_s,
             gps_ok=vs.gps_fix and (vs.position_valid or not vs.link_ok),
@@ -399,10 +399,9 @@ class MissionRunner:
                                       now, dt, trim=pol.trim)
             self._goal_ok = self._inside_envelope(step.goal_ned_m)
             self._at_standoff = step.at_standoff
-            if not step.at_standoff:
-                self._at_standoff_since_ns = None
-            elif self._at_standoff_since_ns is None:
-                self._at_standoff_since_ns = now
+            since = self._at_standoff_since_ns
+            self._at_standoff_since_ns = (None if not step.at_standoff
+                                          else now if since is None else since)
             sp = step.setpoint
             try:
                 await asyncio.wait_for(self.vehicle.set_setpoint(sp),

@@ -65,6 +65,12 @@ class TargetTracking:
         self.last_target: XYZ | None = None
         self.tool_errors: tuple[float, float] | None = None
         self._last_range_m: float | None = None
+        self.loss_places: list[tuple[float, float]] = []
+        self.losses: list[int] = []
+        """Times the target was lost near each of ``loss_places`` (north, east m)."""
+        self.rejected: list[tuple[float, float]] = []
+        self.just_rejected = False
+        self.last_losses = 0
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -80,6 +86,44 @@ class TargetTracking:
         self.grasp_count = 0
         self.grasp_window = []
         self.fit_hint = None
+
+    def count_loss(self) -> tuple[float, float] | None:
+        """The target was lost: count it at the place it was last tracked (losses within
+        ``search_radius_m + confirm_radius_m`` count as one place, as reacquisition does), and
+        log it. The ``max_target_losses``-th loss at a place rejects it (``just_rejected``).
+        Returns the place, None when the target was never tracked."""
+        self.just_rejected = False
+        if self.last_target is None:
+            self.last_losses = 0
+            return None
+        here = (self.last_target[0], self.last_target[1])
+        near = self.p.search_radius_m + self.p.confirm_radius_m
+        i = next((k for k, q in enumerate(self.loss_places) if math.dist(q, here) <= near), None)
+        if i is None:
+            self.loss_places.append(here)
+            self.losses.append(0)
+            i = len(self.losses) - 1
+        self.losses[i] += 1
+        self.last_losses = self.losses[i]
+        place, n = self.loss_places[i], self.losses[i]
+        if n >= self.p.max_target_losses:
+            self.just_rejected = True
+            if place not in self.rejected:
+                self.rejected.append(place)
+        times = "1 time" if n == 1 else f"{n} times"
+        self.log.write("event", source="mission",
+                       text=f"target lost {times} near north {place[0]:.1f} m east "
+                       f"{place[1]:.1f} m" + (": candidate rejected, its estimates are ignored"
+                                              if self.just_rejected else ""))
+        return place
+
+    def losses_at(self, place: tuple[float, float]) -> int:
+        return self.losses[self.loss_places.index(place)]
+
+    def is_rejected(self, position_ned_m: XYZ) -> bool:
+        """An estimate within ``confirm_radius_m`` of a rejected candidate's place."""
+        return any(math.dist(q, position_ned_m[:2]) <= self.p.confirm_radius_m
+                   for q in self.rejected)
 
     # -- queries -------------------------------------------------------------------------------
     def plane_state(self, t_ns: int | None = None) -> PlaneState:
@@ -139,19 +183,25 @@ class TargetTracking:
             near_last = (pos is None or not pol.reacquires or self.last_target is None
                          or math.dist(pos[:2], self.last_target[:2])
                          <= p.search_radius_m + p.confirm_radius_m)
-            self.confirm = confirmation(self.confirm, pos, radius_m=p.confirm_radius_m,
-                                        accept=near_last)
+            if pos is not None and self.is_rejected(pos):
+                pass  # a rejected candidate neither confirms nor breaks a confirmation
+            else:
+                self.confirm = confirmation(self.confirm, pos, radius_m=p.confirm_radius_m,
+                                            accept=near_last)
             if est is not None:
                 self.coarse_std_m = max(est.std_m, 0.2)
         elif est is not None and pol.tracks:
-            accepted = self.filter.update(
-                vertical_reference(est.position_ned_m, cam_t, plane_m, p.vertical_reference,
-                                   full_3d=meas.full_3d, full_3d_range_m=p.full_3d_range_m),
-                est.std_m, frame.timestamp_ns, allow_reset=pol.filter_may_reset)
+            pos = vertical_reference(est.position_ned_m, cam_t, plane_m, p.vertical_reference,
+                                     full_3d=meas.full_3d, full_3d_range_m=p.full_3d_range_m)
+            if self.is_rejected(pos):
+                accepted, why = False, "at a rejected candidate (mission.params.max_target_losses)"
+            else:
+                accepted = self.filter.update(pos, est.std_m, frame.timestamp_ns,
+                                              allow_reset=pol.filter_may_reset)
+                why = "outside the target filter's gate"
             if not accepted:
                 self.log.write("fault_detected", what="estimate_rejected", camera=cam_id,
-                               text="outside the target filter's gate",
-                               response="measurement ignored")
+                               text=why, response="measurement ignored")
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
             fresh = accepted
