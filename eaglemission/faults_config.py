@@ -37,7 +37,7 @@ SIZES: dict[str, tuple[str, float, float, float]] = {
     "camera_clock_jump": ("jump of the camera's frame stamps (s)", -3600.0, 3600.0, 5.0),
     "slow_frame": ("extra processing time per frame (s)", 0.0, 10.0, 0.8),
     "battery_drain": ("battery fraction left after the drain", -1e-9, 1.0, 0.1),
-    "link_delay": ("delay of telemetry and command answers (s)", 0.0, 10.0, 0.2),
+    "link_delay": ("delay of telemetry, command answers and streamed setpoints (s)", 0.0, 10.0, 0.2),
     "autopilot_clock_jump": ("jump of the autopilot's timestamps (s)", -3600.0, 3600.0, 10.0),
     "wind_gust": ("gust speed as a fraction of the vehicle's horizontal speed limit", 0.0,
                   1.0, 0.3),
