@@ -22,6 +22,7 @@ import importlib.util
 import multiprocessing as mp
 import os
 import shutil
+import signal
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -77,6 +78,14 @@ def pin_threads() -> None:
     numba.set_num_threads(1)
 
 
+def _pool_worker_init() -> None:
+    """A local pool's worker: pinned threads, and Ctrl-C left to the campaign (a terminal
+    sends it to the whole process group; the campaign stops its workers itself; what a run
+    starts in a session of its own, an emulator run's ``sitl-vehicle``, ends with its worker)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    pin_threads()
+
+
 @contextmanager
 def _thread_env() -> Iterator[None]:
     """:data:`THREAD_ENV` in ``os.environ`` while it lasts: spawned children inherit it."""
@@ -105,7 +114,7 @@ class LocalExecutor:
             yield from map(fn, jobs)
             return
         with _thread_env():
-            pool = mp.get_context("spawn").Pool(self.workers, initializer=pin_threads,
+            pool = mp.get_context("spawn").Pool(self.workers, initializer=_pool_worker_init,
                                                 maxtasksperchild=5)
             ok = False
             try:

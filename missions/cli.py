@@ -4,9 +4,16 @@ the assembly (``eaglemission run`` is the core command :mod:`eaglemission.comman
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
 
 from eaglemission.commands import Command
+
+INTERRUPTED_EXIT = 130
 
 
 def _add_campaign(p: argparse.ArgumentParser) -> None:
@@ -27,6 +34,31 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", choices=("simulated", "emulator"), default="simulated",
                    help="simulated: virtual time; emulator: each run in real time through "
                    "MAVSDK against its own `sitl-vehicle` process, link faults on its UDP path")
+
+
+@contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM stops a campaign as Ctrl-C does (a scheduler, ``kill``, a CI timeout): the
+    executor's cleanup stops the runs still flying instead of leaving its workers behind."""
+    def interrupt(signum: int, _frame: FrameType | None) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupted(out: str | None) -> int:
+    if out is None:
+        print("interrupted: the runs still flying were stopped; nothing was kept (no --out)",
+              file=sys.stderr)
+    else:
+        kept = len(list(Path(out).glob("run_*.result.json")))
+        print(f"interrupted: the runs still flying were stopped; {kept} finished run(s) kept in "
+              f"{out}: run the same command again to resume", file=sys.stderr)
+    return INTERRUPTED_EXIT
 
 
 def _campaign(args: argparse.Namespace) -> int:
@@ -51,8 +83,6 @@ def _campaign(args: argparse.Namespace) -> int:
             return 2
     ground_images = None
     if args.ground_images is not None:
-        from pathlib import Path
-
         from eaglemission.ground_images import GroundImageError, ground_image_files
 
         try:
@@ -61,10 +91,13 @@ def _campaign(args: argparse.Namespace) -> int:
             print(f"error: --ground-images: {exc}", file=sys.stderr)
             return 2
     try:
-        summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
-                               workers=args.workers, out_dir=args.out, progress=True,
-                               executor=args.executor, address=args.address, faults=kinds,
-                               ground_images=ground_images, vehicle=args.vehicle)
+        with _sigterm_interrupts():
+            summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
+                                   workers=args.workers, out_dir=args.out, progress=True,
+                                   executor=args.executor, address=args.address, faults=kinds,
+                                   ground_images=ground_images, vehicle=args.vehicle)
+    except KeyboardInterrupt:
+        return _interrupted(args.out)
     except (CampaignExecutorError, CampaignResumeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -7,12 +7,14 @@ can connect to it::
     eaglemission sitl-vehicle --mavlink udpout://127.0.0.1:14550      # for QGroundControl
 
 It runs until SIGTERM or SIGINT (a process started in the background from a non-interactive
-shell ignores SIGINT, so SIGTERM is handled too) or ``--duration-s``.
+shell ignores SIGINT, so SIGTERM is handled too), ``--duration-s``, or the end of the process
+given by ``--exit-with-pid`` (a campaign's worker that starts one per run and may be killed).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import threading
 import time
@@ -40,6 +42,8 @@ def _add(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wind", type=float, nargs=2, default=(0.0, 0.0), metavar=("N_MPS", "E_MPS"),
                    help="mean wind")
     p.add_argument("--duration-s", type=float, default=None, help="stop after this long")
+    p.add_argument("--exit-with-pid", type=int, metavar="PID",
+                   help="stop when process PID is gone (checked every 0.2 s)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="PX4 parameter override, e.g. COM_OBL_RC_ACT=5 (repeatable)")
     p.add_argument("--mission", metavar="YAML",
@@ -109,12 +113,25 @@ def _run(args: argparse.Namespace) -> int:
                               f"{'  ARMED' if snap.armed else ''}")
             if deadline is not None and time.monotonic() >= deadline:
                 break
+            if args.exit_with_pid is not None and not _alive(args.exit_with_pid):
+                console.print(f"process {args.exit_with_pid} is gone")
+                break
     finally:
         emu.stop()
         for s, h in old.items():
             signal.signal(s, h)
     console.print("emulator stopped")
     return 0
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, owned by another user
+        return True
+    return True
 
 
 def emulator_settings_from_mission(path: str) -> dict[str, object]:

@@ -86,10 +86,11 @@ def has_link_faults(data: dict[str, Any]) -> bool:
 @contextlib.contextmanager
 def emulator_process(mission_path: str, status_json: str | None = None) -> Iterator[str]:
     """Start ``eaglemission sitl-vehicle`` for a mission file on a free port, as its own
-    process; yields the MAVSDK URL to connect to; stops it (SIGTERM, then SIGKILL) on exit."""
+    process; yields the MAVSDK URL to connect to; stops it (SIGTERM, then SIGKILL) on exit. It
+    also stops itself when this process is gone (killed before it could stop it)."""
     port = _free_udp_port()
     cmd = [sys.executable, "-m", "eaglemission.cli", "sitl-vehicle", "--mission", mission_path,
-           "--mavlink", f"udpout://127.0.0.1:{port}"]
+           "--mavlink", f"udpout://127.0.0.1:{port}", "--exit-with-pid", str(os.getpid())]
     if status_json:
         cmd += ["--status-json", status_json]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,

@@ -159,3 +159,93 @@ def test_the_staged_project_imports_with_its_plugins(tmp_path: Path) -> None:
     module_file, dist_dir, plugin = p.stdout.split()
     assert Path(module_file).is_relative_to(staged) and (staged / dist_dir).resolve() == staged
     assert plugin == "eaglemission.detectors.mss"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["sigterm to the campaign", "ctrl-c to the process group"])
+def test_a_stopped_campaign_keeps_its_runs_and_leaves_no_worker(
+        small_yaml: Path, tmp_path: Path, how: str) -> None:
+    """``kill`` (a scheduler, a CI timeout) stops a campaign as Ctrl-C in its terminal does:
+    the pool's workers are stopped with it, the finished runs stay in --out to resume from,
+    exit 130, no traceback."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "eaglemission.cli", "campaign", str(small_yaml),
+                             "--runs", "12", "--workers", "2", "--seed", str(SEED),
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 240
+        while not list(out.glob("run_*.result.json")):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        if how.startswith("sigterm"):
+            proc.send_signal(signal.SIGTERM)  # to the campaign only, not to its workers
+        else:
+            os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    kept = len(list(out.glob("run_*.result.json")))
+    assert 1 <= kept < 12 and f"{kept} finished run(s) kept in {out}" in err, err
+    assert "Traceback" not in err
+    deadline = time.monotonic() + 20  # the workers (its process group) are gone
+    while True:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "a campaign worker outlived the campaign"
+        time.sleep(0.2)
+
+
+def _sitl_vehicles() -> set[int]:
+    """Pids of the emulator campaigns' ``sitl-vehicle`` processes on this machine."""
+    found = set()
+    for proc in Path("/proc").iterdir():
+        try:
+            cmd = (proc / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"sitl-vehicle" in cmd and any(b"eaglemission-emulator-" in c for c in cmd):
+            found.add(int(proc.name))
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc to list processes")
+def test_a_stopped_emulator_campaign_stops_its_emulators(small_yaml: Path,
+                                                         tmp_path: Path) -> None:
+    """Each emulator run's ``sitl-vehicle`` lives in its own session: stopping the campaign
+    must stop them through the runs that started them, not leave them streaming."""
+    import os
+    import signal
+    import time
+
+    before = _sitl_vehicles()
+    proc = subprocess.Popen([sys.executable, "-m", "eaglemission.cli", "campaign", str(small_yaml),
+                             "--runs", "4", "--workers", "2", "--seed", str(SEED), "--vehicle",
+                             "emulator", "--out", str(tmp_path / "out")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_sitl_vehicles() - before) < 2:  # both workers flying
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        started = _sitl_vehicles() - before
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    deadline = time.monotonic() + 20
+    while _sitl_vehicles() & started:
+        assert time.monotonic() < deadline, f"emulators left running: {_sitl_vehicles() & started}"
+        time.sleep(0.2)
