@@ -322,8 +322,8 @@ class SafeVehicle:
     def _refuse(self) -> bool:
         return self.safety.on_violation == "refuse"
 
-    def _home(self, origin: str) -> GeoPoint:
-        home = self._inner.state().home
+    def _home(self, origin: str, s: VehicleState | None = None) -> GeoPoint:
+        home = (self._inner.state() if s is None else s).home
         if home is None:
             raise SafetyViolation("NO_HOME", origin, None,
                                   "the vehicle reports no home position yet: wait for it before "
@@ -468,9 +468,10 @@ class SafeVehicle:
         await self._inner.takeoff(alt)
 
     async def goto(self, target: GeoPoint, yaw_deg: float) -> None:
-        home = self._home("goto()")
+        s = self._inner.state()  # one sample: the home and the position checked together
+        home = self._home("goto()", s)
         n, e, d = geodetic_to_ned(home, target)
-        p = self._position("goto()", self._inner.state(), (target, yaw_deg))
+        p = self._position("goto()", s, (target, yaw_deg))
         start = (p[0], p[1])
         cn, ce, calt = self._check_point("goto()", n, e, -d, start, (target, yaw_deg))
         if (cn, ce, calt) != (n, e, -d):

@@ -194,6 +194,8 @@ def check_sent(safe: SafeVehicle, sent: list[tuple[str, Any]], case: Any) -> Non
                                 f"{None if seen is None else seen.position_ned_m})", case)
         elif kind == "goto":
             target, seen = what
+            if seen is None or seen.home is None:  # the envelope needs a home to place it
+                raise FuzzCrash(TARGET, f"goto {target} sent without a home position", case)
             n, e, d = geodetic_to_ned(seen.home, target)
             if not (env.safe_h(n, e) and _alt_ok(safe, -d, None)):
                 raise FuzzCrash(TARGET, f"goto outside the envelope: ({n}, {e}, {-d})", case)

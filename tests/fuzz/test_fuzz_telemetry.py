@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from eaglemission.clock import ManualClock
 from eaglemission.config import GeofenceConfig, SafetyConfig
-from eaglemission.errors import SafetyViolation
+from eaglemission.errors import DriverError, SafetyViolation
 from eaglemission.geometry import ned_to_geodetic
 from eaglemission.safety import SafeVehicle
 from eaglemission.types import Setpoint, VehicleState
@@ -129,3 +129,44 @@ async def test_an_absurdly_far_but_finite_position_is_no_position() -> None:
     clock.advance(0.05)
     await safe.set_setpoint(Setpoint(0.0, 0.0, -1.0, 0.0))
     check_sent(safe, hostile.sent, "9e307")
+
+
+class _Sequenced(HostileTelemetry):
+    """Telemetry that moves on at every read: the given states in turn, then the last (the
+    real vehicle's while none are given)."""
+
+    def __init__(self, inner: SimulatedVehicle) -> None:
+        super().__init__(inner)
+        self.states: list[VehicleState] = []
+
+    def state(self) -> VehicleState:
+        if not self.states:
+            return self.inner.state()
+        s = self.states.pop(0) if len(self.states) > 1 else self.states[0]
+        self.seen = s
+        return s
+
+
+async def test_goto_checks_the_home_and_the_position_of_one_sample() -> None:
+    """Found by fuzzing (`benchmarks/fuzz.py --telemetry 100000 --seed 16`: 49 scripts): goto
+    took the home from one telemetry read and the position from the next; with a replayed
+    sample that had no home in between, it sent a target placed by a home the vehicle no
+    longer reported."""
+    hostile = _Sequenced(SimulatedVehicle(clock=ManualClock()))
+    safe = SafeVehicle(hostile, SafetyConfig(), clock=ManualClock())  # type: ignore[arg-type]
+    await safe.connect()
+    await safe.arm()
+    good = hostile.inner.state()
+    assert good.home is not None
+    target = ned_to_geodetic(good.home, 5.0, 5.0, -5.0)
+    moved = replace(good, home=None, position_ned_m=(3.0, 0.0, -2.0))
+    hostile.states = [good, moved, good]
+    with pytest.raises(DriverError):  # the simulated vehicle refuses a goto on the ground
+        await safe.goto(target, 0.0)
+    assert [k for k, _ in hostile.sent] == ["goto"]
+    check_sent(safe, hostile.sent, "one sample")  # the checker reads the sample goto used
+    hostile.states = [moved, good]
+    with pytest.raises(SafetyViolation, match="NO_HOME"):
+        await safe.goto(target, 0.0)
+    assert len(hostile.sent) == 1
+    await safe.close()
