@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from eaglemission.config import MissionFile
+from eaglemission.config import MissionFile, TargetConfig
 from eaglemission.faults_config import FAULT_KINDS
 from eaglemission.faults_outcomes import COMPLETE, OUTCOMES, expected_action
 
@@ -68,6 +68,17 @@ def noticed(recs: list[dict[str, Any]], kind: str, t_inj_ns: int) -> bool:
     return not needles or any(n in line for line in after for n in needles)
 
 
+def grasped_elsewhere(horizontal_error_m: float | None, target: TargetConfig) -> str:
+    """Why a GRASP_READY was not on the target: the true tool point lies beyond half the
+    target's larger side from its centre (another object was grasped); "" when on it or
+    unknown. Precision within the target is the evaluator's (``success``), not this."""
+    half_m = max(target.length_m, target.width_m) / 2.0
+    if horizontal_error_m is None or horizontal_error_m <= half_m:
+        return ""
+    return (f"GRASP_READY {horizontal_error_m:.2f} m from the true target, beyond its half "
+            f"size {half_m:.2f} m: another object was grasped")
+
+
 def judge(out: Any) -> dict[str, Any]:
     """The fault fields of one flown run (an ``ApproachOutcome`` with its log records kept)."""
     cfg: MissionFile = out.config
@@ -89,6 +100,8 @@ def judge(out: Any) -> dict[str, Any]:
         if not ok:
             problems.append(f"expected GRASP_READY + DONE, ended in {ev.final_state}: "
                             f"{ev.reason} ({ev.action})")
+        elif elsewhere := grasped_elsewhere(ev.horizontal_error_m, cfg.target):
+            problems.append(elsewhere)
     else:
         ok = ev.final_state == "FAILSAFE" and ev.action == expected and ev.ended_safe
         if not ok:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from eaglemission.missions.campaign_faults import noticed
+from eaglemission.missions.campaign_faults import grasped_elsewhere, noticed
 from eaglemission.missions.log import read_log
 from fault_harness import Fault, fly_with_faults
 
@@ -85,3 +85,15 @@ def test_campaign_with_faults_ends_each_run_in_its_expected_outcome(
                           "--faults", "camera_dorp", "--runs", "1"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "camera_dorp" in bad.stderr
+
+
+def test_a_grasp_beyond_the_target_is_another_object() -> None:
+    """Found by the 1,000-run fault campaign (run 521): GRASP_READY + DONE on a distractor of
+    the target's colour 11.2 m away counted as a completed tolerable fault."""
+    from eaglemission.config import TargetConfig
+
+    box = TargetConfig(length_m=0.3, width_m=0.2)
+    assert grasped_elsewhere(None, box) == "" and grasped_elsewhere(0.069, box) == ""
+    assert grasped_elsewhere(0.15, box) == ""  # on the box, if not precise (the evaluator's)
+    why = grasped_elsewhere(11.238, box)
+    assert "11.24 m from the true target" in why and "another object" in why
