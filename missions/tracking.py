@@ -65,12 +65,10 @@ class TargetTracking:
         self.last_target: XYZ | None = None
         self.tool_errors: tuple[float, float] | None = None
         self._last_range_m: float | None = None
-        self.loss_places: list[tuple[float, float]] = []
-        self.losses: list[int] = []
-        """Times the target was lost near each of ``loss_places`` (north, east m)."""
-        self.rejected: list[tuple[float, float]] = []
-        self.just_rejected = False
+        self.losses: dict[tuple[float, float], int] = {}
+        """Times the target was lost near each place (north, east m of the first loss there)."""
         self.last_losses = 0
+        """Losses counted at the place of the latest one (0: the target was never tracked)."""
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -92,24 +90,14 @@ class TargetTracking:
         ``search_radius_m + confirm_radius_m`` count as one place, as reacquisition does), and
         log it. The ``max_target_losses``-th loss at a place rejects it (``just_rejected``).
         Returns the place, None when the target was never tracked."""
-        self.just_rejected = False
         if self.last_target is None:
             self.last_losses = 0
             return None
         here = (self.last_target[0], self.last_target[1])
         near = self.p.search_radius_m + self.p.confirm_radius_m
-        i = next((k for k, q in enumerate(self.loss_places) if math.dist(q, here) <= near), None)
-        if i is None:
-            self.loss_places.append(here)
-            self.losses.append(0)
-            i = len(self.losses) - 1
-        self.losses[i] += 1
-        self.last_losses = self.losses[i]
-        place, n = self.loss_places[i], self.losses[i]
-        if n >= self.p.max_target_losses:
-            self.just_rejected = True
-            if place not in self.rejected:
-                self.rejected.append(place)
+        place = next((q for q in self.losses if math.dist(q, here) <= near), here)
+        n = self.losses[place] = self.losses.get(place, 0) + 1
+        self.last_losses = n
         times = "1 time" if n == 1 else f"{n} times"
         self.log.write("event", source="mission",
                        text=f"target lost {times} near north {place[0]:.1f} m east "
@@ -117,13 +105,24 @@ class TargetTracking:
                                               if self.just_rejected else ""))
         return place
 
+    @property
+    def just_rejected(self) -> bool:
+        """The latest loss was the ``max_target_losses``-th (or later) at its place."""
+        return self.last_losses >= self.p.max_target_losses
+
+    @property
+    def rejected(self) -> list[tuple[float, float]]:
+        """The places of rejected candidates."""
+        return [q for q, n in self.losses.items() if n >= self.p.max_target_losses]
+
     def losses_at(self, place: tuple[float, float]) -> int:
-        return self.losses[self.loss_places.index(place)]
+        return self.losses[place]
 
     def is_rejected(self, position_ned_m: XYZ) -> bool:
         """An estimate within ``confirm_radius_m`` of a rejected candidate's place."""
-        return any(math.dist(q, position_ned_m[:2]) <= self.p.confirm_radius_m
-                   for q in self.rejected)
+        most, radius = self.p.max_target_losses, self.p.confirm_radius_m  # per frame: no list
+        return any(n >= most and math.dist(q, position_ned_m[:2]) <= radius
+                   for q, n in self.losses.items())
 
     # -- queries -------------------------------------------------------------------------------
     def plane_state(self, t_ns: int | None = None) -> PlaneState:
