@@ -99,6 +99,19 @@ class ApproachConfig(BaseModel):
                                    "are ignored and `on_target_lost` applies at once (a "
                                    "distractor the fine approach keeps refusing; not in the "
                                    "paper)")
+    max_route_passes: int = Field(2, ge=1, le=10, description="a rejected candidate sends "
+                                  "the search along the route again from its start once it "
+                                  "ends (the target may have been passed unconfirmed), up to "
+                                  "this many passes in all (not in the paper)")
+    heading_min_consistency: float = Field(
+        0.0, ge=0, le=1, description="an elongated target's fitted heading must agree across "
+        "its complete close-range views: below this mean resultant length of the doubled "
+        "headings (1 = all agree, 0 = spread evenly) the candidate is rejected as not the "
+        "target's shape (a same-coloured box of the target's area; 0, the default, disables it; "
+        "0.6 rejects campaign run 521's box, but true targets reach 0.74: docs/mission.md, "
+        "\"candidate rejection\"; not in the paper)")
+    heading_min_views: int = Field(12, ge=2, description="complete close-range views before "
+                                   "heading_min_consistency is judged")
     takeoff_tolerance_m: float = Field(0.3, gt=0)
     min_telemetry_hz: float = Field(10.0, gt=0)
     vertical_reference: Literal["ground", "estimate", "hybrid"] = Field(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import traceback
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,6 +50,17 @@ def randomise(cfg: MissionFile, rng: np.random.RandomState,
         {**cfg.model_dump(), "world": {"type": cfg.world.type, "params": params}})
 
 
+def crash_explanation(exc: BaseException) -> str:
+    """``Type: message (file:line in function)`` of each innermost exception of ``exc``: an
+    ExceptionGroup from a TaskGroup names its sub-exceptions, not just their count."""
+    if isinstance(exc, BaseExceptionGroup):
+        return "; ".join(crash_explanation(e) for e in exc.exceptions)
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" ({Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name})" \
+        if frames else ""
+    return f"{type(exc).__name__}: {exc}{where}"
+
+
 def _one_run(job: tuple[Any, ...]) -> dict[str, Any]:
     index, cfg_dict, out_dir = job[:3]
     vehicle = job[3] if len(job) > 3 else "simulated"
@@ -67,7 +79,8 @@ def _one_run(job: tuple[Any, ...]) -> dict[str, Any]:
                run_simulation(cfg, log_path=log_path, keep_log=faulted))
     except Exception as exc:  # a crashed run is a failure with its reason, not a lost campaign
         return {"run": index, "crashed": True, "success": False,
-                "explanation": f"crashed: {type(exc).__name__}: {exc}",
+                "explanation": f"crashed: {crash_explanation(exc)}",
+                "traceback": "".join(traceback.format_exception(exc)),
                 "fault": cfg.faults.inject[0].kind if faulted and cfg.faults else None,
                 "sim": cfg.world.params if cfg.world else None}
     ev = out.evaluation

@@ -196,6 +196,11 @@ class Guidance:
         self._tool_off: XYZ | None = None
         self._search_t0_ns = 0
         self._search_centre: XYZ | None = None
+        self.passes = 1
+        """Route passes begun or granted (``search_route_again``)."""
+        self.passes_left = 0
+        """Times the route is still to be flown again from its start once it ends."""
+        self._to_start = False
 
     # -- state entries ---------------------------------------------------------------------
     def start_at(self, position_ned_m: XYZ, yaw_deg: float) -> Setpoint:
@@ -205,6 +210,17 @@ class Guidance:
 
     def resume_route_from(self, north_m: float, east_m: float) -> None:
         self.route_s_m = max(self.route_s_m, along_route_m(self.c.route_ne_m, north_m, east_m))
+
+    def search_route_again(self, max_passes: int) -> str | None:
+        """Fly the route again from its start once it ends (a candidate on it was rejected:
+        the target may have been passed unconfirmed), unless ``max_passes`` are flown or
+        granted; what to log, None when not granted."""
+        if self.passes >= max_passes:
+            return None
+        self.passes += 1
+        self.passes_left += 1
+        return (f"route to be searched again from its start when it ends (pass {self.passes} "
+                f"of max_route_passes={max_passes})")
 
     def new_approach(self) -> None:
         self.approach_yaw_deg = None
@@ -216,7 +232,7 @@ class Guidance:
 
     # -- queries -----------------------------------------------------------------------------
     def route_finished(self, position_ned_m: XYZ) -> bool:
-        if self.route_s_m < self.route_len_m - 1e-6:
+        if self.passes_left or self._to_start or self.route_s_m < self.route_len_m - 1e-6:
             return False
         return math.dist(position_ned_m[:2], self.c.route_ne_m[-1]) < 1.5
 
@@ -233,6 +249,16 @@ class Guidance:
         policy), None when there is none (no target yet)."""
         c = self.c
         if kind == "ROUTE":
+            start = route_point(c.route_ne_m, 0.0)
+            if (self.passes_left and self.route_s_m >= self.route_len_m - 1e-6
+                    and math.dist(position_ned_m[:2], c.route_ne_m[-1]) < 1.5):
+                self.passes_left -= 1
+                self.route_s_m, self._to_start = 0.0, True
+            if self._to_start and math.dist(position_ned_m[:2], start[:2]) >= 1.5:
+                # straight back to the start at cruise altitude, facing the way it flies
+                return ((start[0], start[1], -c.cruise_altitude_m),
+                        yaw_towards_deg(position_ned_m[:2], start[:2]), c.cruise_speed_mps * 1.5)
+            self._to_start = False
             here_s = along_route_m(c.route_ne_m, *position_ned_m[:2])
             self.route_s_m = min(self.route_len_m, self.route_s_m + c.cruise_speed_mps * dt_s,
                                  here_s + 2.0 * c.cruise_speed_mps)

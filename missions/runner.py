@@ -198,6 +198,10 @@ class MissionRunner:
 
     def _enter_count_loss(self, now: int) -> None:
         self.track.count_loss()
+        again = self.guidance.search_route_again(self.p.max_route_passes) \
+            if self.track.just_rejected else None
+        if again is not None:
+            self.log.write("event", source="mission", text=again)
 
     def _enter_clear_confirmation(self, now: int) -> None:
         self.track.confirm = []
@@ -424,20 +428,6 @@ class MissionRunner:
                 self._wake_machine.set()
 
     # -- main ----------------------------------------------------------------------------------
-    def _result(self) -> MissionResult:
-        act = self.actuator
-        return MissionResult(
-            final_state=self.machine.state.value, reason=self.machine.reason,
-            action=self.machine.outcome_action(self.p.on_done),
-            states=self.states, t_start_s=0.0, t_end_s=self._t_s(),
-            t_grasp_ready_s=self.t_grasp_ready_s,
-            estimated_tool_errors_m=self.track.tool_errors,
-            latencies_ms=self.latencies_ms, frames_processed=dict(self._processed),
-            frame_counts=self.pump.final_counts(self._processed, final=self.machine.final),
-            detections=dict(self._detected), detection_frames=self.detection_frames,
-            failsafe_params=act.failsafe_params, failsafe_warnings=act.failsafe_warnings,
-            perception_ms=self.perception_ms, wall_s=time.perf_counter() - self._wall0)
-
     async def run(self) -> MissionResult:
         self.log.write("start", config_state=self.machine.state.value,
                        params=self.p.model_dump(), cameras=list(self.cameras))
@@ -470,7 +460,7 @@ class MissionRunner:
                     tg.create_task(self.pump.run(cam))
             completed = True
         finally:
-            result = self._result()
+            result = mission_result(self)
             self.log.write("end", final_state=result.final_state, reason=result.reason,
                            action=result.action, t_grasp_ready_s=result.t_grasp_ready_s,
                            estimated_tool_errors_m=result.estimated_tool_errors_m,
@@ -478,6 +468,22 @@ class MissionRunner:
                            frame_counts=result.frame_counts, wall_s=round(result.wall_s, 3),
                            completed=completed)
         return result
+
+
+def mission_result(r: MissionRunner) -> MissionResult:
+    """What the runner has flown so far, as the mission's result."""
+    act = r.actuator
+    return MissionResult(
+        final_state=r.machine.state.value, reason=r.machine.reason,
+        action=r.machine.outcome_action(r.p.on_done),
+        states=r.states, t_start_s=0.0, t_end_s=r._t_s(),
+        t_grasp_ready_s=r.t_grasp_ready_s,
+        estimated_tool_errors_m=r.track.tool_errors,
+        latencies_ms=r.latencies_ms, frames_processed=dict(r._processed),
+        frame_counts=r.pump.final_counts(r._processed, final=r.machine.final),
+        detections=dict(r._detected), detection_frames=r.detection_frames,
+        failsafe_params=act.failsafe_params, failsafe_warnings=act.failsafe_warnings,
+        perception_ms=r.perception_ms, wall_s=time.perf_counter() - r._wall0)
 
 
 async def perceive_logged(runner: MissionRunner, req: Request) -> Measurement | None:

@@ -42,6 +42,20 @@ class Applied:
     switched_to: str | None
 
 
+ELONGATED = 1.25
+"""Length / width from which a target's heading is defined well enough to be checked."""
+
+
+def heading_consistency(headings_deg: list[float]) -> float:
+    """Mean resultant length of headings taken modulo 180 deg (a box is symmetric under a half
+    turn, so each is doubled first): 1 when all agree, near 0 when they spread evenly."""
+    if not headings_deg:
+        return 0.0
+    c = sum(math.cos(math.radians(2.0 * h)) for h in headings_deg)
+    s = sum(math.sin(math.radians(2.0 * h)) for h in headings_deg)
+    return math.hypot(c, s) / len(headings_deg)
+
+
 class TargetTracking:
     """The mission's knowledge of the target (see the module docstring)."""
 
@@ -69,6 +83,11 @@ class TargetTracking:
         """Times the target was lost near each place (north, east m of the first loss there)."""
         self.last_losses = 0
         """Losses counted at the place of the latest one (0: the target was never tracked)."""
+        self.last_place: tuple[float, float] | None = None
+        self.misshapen: dict[tuple[float, float], str] = {}
+        """Places of candidates whose fitted heading disagrees across views (the reason)."""
+        self.headings_deg: list[float] = []
+        """Fitted headings of the tracked candidate's complete close-range views."""
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -84,20 +103,20 @@ class TargetTracking:
         self.grasp_count = 0
         self.grasp_window = []
         self.fit_hint = None
+        self.headings_deg = []
 
     def count_loss(self) -> tuple[float, float] | None:
         """The target was lost: count it at the place it was last tracked (losses within
         ``search_radius_m + confirm_radius_m`` count as one place, as reacquisition does), and
         log it. The ``max_target_losses``-th loss at a place rejects it (``just_rejected``).
         Returns the place, None when the target was never tracked."""
+        self.headings_deg = []
         if self.last_target is None:
-            self.last_losses = 0
+            self.last_losses, self.last_place = 0, None
             return None
-        here = (self.last_target[0], self.last_target[1])
-        near = self.p.search_radius_m + self.p.confirm_radius_m
-        place = next((q for q in self.losses if math.dist(q, here) <= near), here)
+        place = self._place_of(self.last_target)
         n = self.losses[place] = self.losses.get(place, 0) + 1
-        self.last_losses = n
+        self.last_losses, self.last_place = n, place
         times = "1 time" if n == 1 else f"{n} times"
         self.log.write("event", source="mission",
                        text=f"target lost {times} near north {place[0]:.1f} m east "
@@ -105,24 +124,63 @@ class TargetTracking:
                                               if self.just_rejected else ""))
         return place
 
+    def _place_of(self, position_ned_m: XYZ) -> tuple[float, float]:
+        """The counted place within ``search_radius_m + confirm_radius_m`` (as reacquisition
+        searches), else the position itself."""
+        here = (position_ned_m[0], position_ned_m[1])
+        near = self.p.search_radius_m + self.p.confirm_radius_m
+        return next((q for q in self.losses if math.dist(q, here) <= near), here)
+
+    def _rejects(self, place: tuple[float, float]) -> bool:
+        return self.losses[place] >= self.p.max_target_losses or place in self.misshapen
+
     @property
     def just_rejected(self) -> bool:
-        """The latest loss was the ``max_target_losses``-th (or later) at its place."""
-        return self.last_losses >= self.p.max_target_losses
+        """The latest loss was at a rejected place: the ``max_target_losses``-th there, or at
+        a candidate of the wrong shape (:meth:`check_heading`)."""
+        return self.last_place is not None and self._rejects(self.last_place)
 
     @property
     def rejected(self) -> list[tuple[float, float]]:
         """The places of rejected candidates."""
-        return [q for q, n in self.losses.items() if n >= self.p.max_target_losses]
+        return [q for q in self.losses if self._rejects(q)]
 
     def losses_at(self, place: tuple[float, float]) -> int:
         return self.losses[place]
 
     def is_rejected(self, position_ned_m: XYZ) -> bool:
         """An estimate within ``confirm_radius_m`` of a rejected candidate's place."""
-        most, radius = self.p.max_target_losses, self.p.confirm_radius_m  # per frame: no list
-        return any(n >= most and math.dist(q, position_ned_m[:2]) <= radius
-                   for q, n in self.losses.items())
+        radius = self.p.confirm_radius_m
+        return any(math.dist(q, position_ned_m[:2]) <= radius and self._rejects(q)
+                   for q in self.losses)
+
+    def check_heading(self, yaw_deg: float, position_ned_m: XYZ) -> None:
+        """One complete view's fitted heading of the candidate tracked in the fine approach.
+        Once ``heading_min_views`` are in, an elongated target's headings must agree
+        (:func:`heading_consistency` at least ``heading_min_consistency``): a candidate of
+        another shape (a square box of the target's colour and area fits at whatever heading
+        makes its perspective match) is rejected at its place and its track dropped; the loss
+        that follows applies ``on_target_lost`` at once."""
+        t, p = self.cfg.target, self.p
+        if p.heading_min_consistency <= 0 or t.length_m < ELONGATED * t.width_m:
+            return
+        self.headings_deg.append(yaw_deg)
+        n = len(self.headings_deg)
+        if n < p.heading_min_views:
+            return
+        r = heading_consistency(self.headings_deg)
+        if r >= p.heading_min_consistency:
+            return
+        place = self._place_of(position_ned_m)
+        self.losses.setdefault(place, 0)
+        why = (f"fitted heading inconsistent over {n} views (consistency {r:.2f} < "
+               f"heading_min_consistency={p.heading_min_consistency:g}): not the target's shape")
+        self.misshapen[place] = why
+        self.headings_deg = []
+        self.filter.reset()
+        self.log.write("event", source="mission",
+                       text=f"candidate near north {place[0]:.1f} m east {place[1]:.1f} m "
+                       f"rejected: {why}")
 
     # -- queries -------------------------------------------------------------------------------
     def plane_state(self, t_ns: int | None = None) -> PlaneState:
@@ -203,6 +261,8 @@ class TargetTracking:
                                text=why, response="measurement ignored")
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
+            if accepted and meas.fit_hint is not None and pol.camera_choice == "fine":
+                self.check_heading(meas.fit_hint.yaw_deg, pos)
             fresh = accepted
         filt = self.filter.state(frame.timestamp_ns)
         switched = None

@@ -15,9 +15,10 @@ from eaglemission.missions.approach import (
     lost_resumes_cruise,
 )
 from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.guidance import Guidance, GuidanceConfig
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.sim import run_simulation
-from eaglemission.missions.tracking import TargetTracking
+from eaglemission.missions.tracking import TargetTracking, heading_consistency
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile, load_config
@@ -104,6 +105,104 @@ def test_a_distractor_lost_three_times_is_rejected_and_the_target_is_grasped(
     texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
     rejected = [t for t in texts if "candidate rejected" in t]
     assert len(rejected) == 1 and "north 8." in rejected[0], texts
+    assert ev.reached_grasp_ready and ev.final_state == "DONE", ev.explanation
+    assert ev.horizontal_error_m is not None and ev.horizontal_error_m < 0.05
+    assert not ev.violations
+
+
+def test_heading_consistency_is_one_when_headings_agree_modulo_a_half_turn() -> None:
+    assert heading_consistency([10.0, 190.0, 10.0]) == pytest.approx(1.0)
+    assert heading_consistency([0.0, 90.0]) == pytest.approx(0.0, abs=1e-12)
+    assert heading_consistency([165.0] * 10 + [15.0] * 3) > 0.9  # a mirrored fit now and then
+    assert heading_consistency([135.0] * 12 + [0.0] * 10 + [60.0] * 4) < 0.5
+    assert heading_consistency([]) == 0.0
+
+
+def test_a_candidate_whose_heading_wanders_is_rejected_and_its_track_dropped() -> None:
+    t = _tracking(heading_min_consistency=0.6, heading_min_views=4)
+    t.filter.update((37.9, -3.3, -0.2), 0.1, 1)
+    t.last_target = (37.9, -3.3, -0.2)
+    for yaw in (135.0, 135.0, 140.0):
+        t.check_heading(yaw, (37.9, -3.3, -0.2))
+    assert not t.misshapen and t.filter.state(1) is not None
+    t.check_heading(45.0, (37.9, -3.3, -0.2))  # 4 views: consistency 0.48
+    assert list(t.misshapen) == [(37.9, -3.3)] and "not the target's shape" in \
+        t.misshapen[(37.9, -3.3)]
+    assert t.filter.state(1) is None and t.is_rejected((38.5, -3.0, 0.0))
+    assert t.count_loss() == (37.9, -3.3) and t.just_rejected and t.last_losses == 1
+
+
+def test_the_heading_check_is_off_by_default_and_for_a_square_target() -> None:
+    t = _tracking(heading_min_views=2)
+    for yaw in (0.0, 90.0, 0.0, 90.0):
+        t.check_heading(yaw, (1.0, 1.0, 0.0))
+    assert not t.misshapen
+    cfg = load_config(check_plugins=False)
+    square = variant(cfg, target={**cfg.target.model_dump(), "length_m": 0.3, "width_m": 0.3},
+                     mission={"params": {**cfg.mission.params, "heading_min_consistency": 0.6,
+                                         "heading_min_views": 2}})
+    models = {cid: getattr(square.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
+    s = TargetTracking(square, ApproachConfig.of(square), models,
+                       MissionLog(None, now_ns=lambda: 0))
+    for yaw in (0.0, 90.0, 0.0, 90.0):
+        s.check_heading(yaw, (1.0, 1.0, 0.0))
+    assert not s.misshapen
+
+
+def test_a_granted_pass_flies_back_to_the_route_start_before_the_route_ends() -> None:
+    cfg = load_config(check_plugins=False)
+    g = Guidance(GuidanceConfig.of(cfg, ApproachConfig.of(cfg)))
+    route = g.c.route_ne_m
+    end = (route[-1][0], route[-1][1], -cfg.mission.cruise_altitude_m)
+    g.route_s_m = g.route_len_m
+    assert g.route_finished(end)
+    assert g.search_route_again(2) is not None and g.search_route_again(2) is None
+    assert not g.route_finished(end)
+    goal = g.goal("ROUTE", end, 0.0, (1.0, 0.0, 0.0, 0.0), None, 0, 0.1)
+    assert goal is not None and goal[0][:2] == pytest.approx(route[0])
+    assert not g.route_finished(end) and g.passes_left == 0
+    start = (route[0][0], route[0][1], end[2])
+    goal = g.goal("ROUTE", start, 0.0, (1.0, 0.0, 0.0, 0.0), None, 0, 0.1)
+    assert goal is not None and 0.0 < g.route_s_m < 1.0  # the second pass has begun
+    assert not g.route_finished(start)
+
+
+@pytest.fixture
+def run_521() -> MissionFile:
+    """World 521 of ``fault_campaign.py --seed 3 --binning 2`` (``command_denied`` in the coarse
+    approach): the target at N 28.0 m is seen once in cruise, unconfirmed; a red box 0.32 m
+    square (the target's colour and top area, 0.40 x 0.25 m) at N 37.8 m is confirmed, and
+    every plane fit explains it, each at another heading."""
+    cfg = load_config(check_plugins=False)
+    d = cfg.model_dump(mode="json")
+    for cam in d["cameras"].values():
+        w, h = cam["resolution_px"]
+        cam["resolution_px"] = [w // 2, h // 2]
+        cam["pixel_size_um"] *= 2
+    d["mission"]["params"] = {**d["mission"]["params"], "heading_min_consistency": 0.6}
+    d["world"]["params"] = {
+        "seed": 1505987167, "target_north_m": 28.017, "target_east_m": 2.349,
+        "target_yaw_deg": -74.82, "ground_texture": "soil", "light_gain": 0.722,
+        "noise_sigma": 2.0, "wind_ne_mps": [0.858, -0.451], "mount_error_deg": 2.0,
+        "focal_error_fraction": 0.03, "camera_time_offset_s": 0.00954, "frame_rate_hz": 30.0,
+        "distractors": [
+            {"kind": "box", "north_m": 37.806, "east_m": -3.163, "size_m": 0.324,
+             "height_m": 0.1996, "color_bgr": [29, 25, 177]},
+            {"kind": "disc", "north_m": 23.219, "east_m": -2.767, "size_m": 0.588,
+             "height_m": 0.111, "color_bgr": [226, 195, 66]}]}
+    d["faults"] = {"inject": [{"kind": "command_denied", "at_state": "COARSE_APPROACH",
+                               "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]}
+    return MissionFile.model_validate(d)
+
+
+def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_again(
+        run_521: MissionFile, tmp_path: Path) -> None:
+    out = run_simulation(run_521, log_path=tmp_path / "run.jsonl")
+    ev = out.evaluation
+    texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
+    assert any("rejected: fitted heading inconsistent" in t and "north 37." in t
+               for t in texts), texts
+    assert any("searched again from its start" in t for t in texts), texts
     assert ev.reached_grasp_ready and ev.final_state == "DONE", ev.explanation
     assert ev.horizontal_error_m is not None and ev.horizontal_error_m < 0.05
     assert not ev.violations
