@@ -102,7 +102,7 @@ class Actuator:
         timeout = self.p.timeouts.command_s
         try:
             await asyncio.wait_for(coro_fn(), timeout=timeout)
-        except (errors.VehicleError, TimeoutError) as exc:
+        except (errors.DriverError, TimeoutError) as exc:  # refused, or a bounded wait ran out
             self.log.write("command", name=name, ok=False, error=str(exc))
             return False
         self.log.write("command", name=name, ok=True)

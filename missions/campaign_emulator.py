@@ -10,8 +10,6 @@ pilot, a denied command) have no control channel into the ``sitl-vehicle`` proce
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -50,14 +48,9 @@ def fly_on_emulator(cfg: MissionFile, *, log_path: Path | None, keep_log: bool) 
     from eaglemission.commands.run import emulator_process, has_link_faults
 
     doc = cfg.model_dump(mode="json")
-    fd, name = tempfile.mkstemp(prefix="eaglemission-emulator-", suffix=".yaml")
-    try:
-        with os.fdopen(fd, "w") as f:
-            yaml.safe_dump(doc, f)
-        with emulator_process(name) as url:
-            flown = MissionFile.model_validate({**doc, "vehicle": {
-                "type": "mavsdk", "params": {"url": url, "connect_timeout_s": 30,
-                                             "fault_relay": has_link_faults(doc)}}})
-            return run_simulation(flown, realtime=True, log_path=log_path, keep_log=keep_log)
-    finally:
-        os.unlink(name)
+    # the mission goes to the emulator through its stdin: a killed worker leaves no file
+    with emulator_process(None, mission_yaml=yaml.safe_dump(doc)) as url:
+        flown = MissionFile.model_validate({**doc, "vehicle": {
+            "type": "mavsdk", "params": {"url": url, "connect_timeout_s": 30,
+                                         "fault_relay": has_link_faults(doc)}}})
+        return run_simulation(flown, realtime=True, log_path=log_path, keep_log=keep_log)

@@ -410,7 +410,7 @@ class MissionRunner:
             try:
                 await asyncio.wait_for(self.vehicle.set_setpoint(sp),
                                        timeout=self.p.timeouts.command_s)
-            except (errors.VehicleError, TimeoutError) as exc:
+            except (errors.DriverError, TimeoutError) as exc:  # VehicleError, TimeoutError_
                 self.log.write("event", source="setpoint", text=f"setpoint refused: {exc}")
                 continue
             latency = None

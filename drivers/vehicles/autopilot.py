@@ -283,7 +283,7 @@ class Autopilot:
         """Position / Altitude / Manual... by a ground station (no RC input: PX4 sinks) or a pilot
         (sticks centred: holds)."""
         self.manual_input = source == "pilot"
-        self.offboard_failover = False  # someone chose another mode: the user's intent changed
+        self.offboard_failover = self.failsafe_active = False  # the user's intent: a takeover
         if source == "command":
             self.offboard_active = False
         self.set_mode(mode, source)
@@ -297,6 +297,7 @@ class Autopilot:
     def pilot_take_control(self, mode: FlightMode) -> None:
         """A pilot or ground station switches the mode (manual modes hold: sticks centred)."""
         dyn = self.dyn
+        self.offboard_failover = self.failsafe_active = False  # a user takeover
         if mode == FlightMode.RETURN_TO_LAUNCH and self.armed and self.in_air:
             self.start_rtl("pilot")
             return
@@ -353,9 +354,11 @@ class Autopilot:
         self.listener.on_mode(old, mode, source)
 
     def _by_command(self) -> None:
+        """A commanded mode, the new intent; in a failsafe a takeover (PX4's FailsafeBase)."""
         self.offboard_active = False
         self.offboard_failover = False
         self.manual_input = False
+        self.failsafe_active = False
 
     def _offboard_signal_back(self) -> None:
         """PX4 (recorded i): setpoints arriving again clear the offboard-loss failsafe and it

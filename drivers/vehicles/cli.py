@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import sys
 import threading
 import time
 from typing import TYPE_CHECKING
@@ -49,7 +50,7 @@ def _add(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", metavar="YAML",
                    help="take the world's wind and seed (`simulation`) and, when its vehicle "
                         "is `simulated`, its dynamics and rangefinder from this mission file "
-                        "(what `run --vehicle emulator` does)")
+                        "(what `run --vehicle emulator` does); `-` reads it from standard input")
     p.add_argument("--rangefinder", action="store_true",
                    help="stream a downward DISTANCE_SENSOR (as PX4 SIH)")
     p.add_argument("--status-json", metavar="PATH",
@@ -143,7 +144,13 @@ def emulator_settings_from_mission(path: str) -> dict[str, object]:
 
     from eaglemission.config import load_config
 
-    cfg = load_config(path, check_plugins=False)
+    if path == "-":  # the mission's YAML on stdin (the campaign's emulator runs)
+        from eaglemission.config import parse_yaml, validate_mapping
+
+        cfg = validate_mapping(parse_yaml(sys.stdin.read(), source="<stdin>"), source="<stdin>",
+                               check_plugins=False)
+    else:
+        cfg = load_config(path, check_plugins=False)
     out: dict[str, object] = {}
     world = world_config(cfg)
     if world is not None:

@@ -84,17 +84,29 @@ def has_link_faults(data: dict[str, Any]) -> bool:
 
 
 @contextlib.contextmanager
-def emulator_process(mission_path: str, status_json: str | None = None) -> Iterator[str]:
-    """Start ``eaglemission sitl-vehicle`` for a mission file on a free port, as its own
-    process; yields the MAVSDK URL to connect to; stops it (SIGTERM, then SIGKILL) on exit. It
-    also stops itself when this process is gone (killed before it could stop it)."""
+def emulator_process(mission_path: str | None, status_json: str | None = None, *,
+                     mission_yaml: str | None = None) -> Iterator[str]:
+    """Start ``eaglemission sitl-vehicle`` for a mission file (or the mission's YAML text,
+    ``mission_yaml``, through its standard input: no file to leave behind) on a free port, as
+    its own process; yields the MAVSDK URL to connect to; stops it (SIGTERM, then SIGKILL) on
+    exit. It also stops itself when this process is gone (killed before it could stop it)."""
+    if (mission_path is None) == (mission_yaml is None):
+        raise ValueError("emulator_process: give mission_path or mission_yaml, not both")
     port = _free_udp_port()
-    cmd = [sys.executable, "-m", "eaglemission.cli", "sitl-vehicle", "--mission", mission_path,
+    cmd = [sys.executable, "-m", "eaglemission.cli", "sitl-vehicle",
+           "--mission", "-" if mission_path is None else mission_path,
            "--mavlink", f"udpout://127.0.0.1:{port}", "--exit-with-pid", str(os.getpid())]
     if status_json:
         cmd += ["--status-json", status_json]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            stdin=subprocess.DEVNULL if mission_yaml is None else subprocess.PIPE,
                             start_new_session=True)
+    if mission_yaml is not None and proc.stdin is not None:
+        with proc.stdin:
+            try:
+                proc.stdin.write(mission_yaml.encode("utf-8"))
+            except BrokenPipeError:
+                pass  # it exited already: its stderr says why, the connection will time out
     try:
         yield f"udpin://127.0.0.1:{port}"
     finally:

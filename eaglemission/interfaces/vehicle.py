@@ -19,7 +19,8 @@ from eaglemission.types import (
 class Vehicle(Protocol):
     """An autopilot, real or simulated. Every command is async, bounded by the driver's
     configured timeouts, and raises :class:`~eaglemission.errors.VehicleError` (result code +
-    origin) on refusal. ``state()`` is a cheap snapshot of the latest telemetry; ``state_at``
+    origin) on refusal and :class:`~eaglemission.errors.TimeoutError_` when such a wait runs
+    out (both :class:`~eaglemission.errors.DriverError`: what a caller catches). ``state()`` is a cheap snapshot of the latest telemetry; ``state_at``
     interpolates the pose at a past host-monotonic time from a ~2 s history (None outside it).
 
     Construction: ``cls(config=<cls.Config instance>, clock=Clock, **context)``.

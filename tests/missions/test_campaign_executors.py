@@ -212,7 +212,9 @@ def _sitl_vehicles() -> set[int]:
             cmd = (proc / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"sitl-vehicle" in cmd and any(b"eaglemission-emulator-" in c for c in cmd):
+        # a campaign's emulator takes its mission on stdin (`--mission -`)
+        if b"sitl-vehicle" in cmd and b"--mission" in cmd \
+                and cmd[cmd.index(b"--mission") + 1:][:1] == [b"-"]:
             found.add(int(proc.name))
     return found
 

@@ -280,3 +280,38 @@ def test_gps_loss_invalidates_the_position_then_lands() -> None:
     assert not b.ap.position_valid and b.ap.mode == FlightMode.LAND
     b.run(5.0)
     assert b.ap.gps_ok and [v for _, k, v in b.rec.log if k == "gps"] == [True]
+
+
+@pytest.mark.parametrize("takeover", ["hold then return (the mission's failsafe)",
+                                      "the pilot switches to Hold"])
+def test_a_mode_chosen_during_a_failsafe_is_a_takeover_and_what_a_disarm_restores(
+        takeover: str) -> None:
+    """PX4's FailsafeBase: an updated user-intended mode during a failsafe clears the action,
+    so after the landing the mode is what the user chose last, not the mode the failsafe
+    interrupted. Found by the 50-run emulator link-loss campaign: offboard loss (link down,
+    Hold), then the mission's stop_offboard + return; after the RTL's disarm the emulator went
+    back to OFFBOARD, the mode it had been in before the failsafe."""
+    b = Bench(offboard_loss_timeout_s=1.0, offboard_loss_action=FailsafeAction.HOLD,
+              disarm_restores_intended_mode=True, rtl_return_altitude_m=8.0)
+    b.hover(10.0, 0.0, 5.0)
+    sp = Setpoint(10.0, 0.0, -5.0, 0.0)
+    b.ap.start_offboard(sp)
+    for _ in range(20):
+        b.run(0.05)
+        b.ap.set_setpoint(sp)
+    b.run(2.5)  # the link is down: no setpoints
+    assert b.ap.mode == FlightMode.HOLD and b.ap.failsafe_active
+    assert b.ap.intended_mode == FlightMode.OFFBOARD
+    if takeover.startswith("hold"):
+        b.ap.stop_offboard()  # outside OFFBOARD: changes nothing
+        b.ap.hold()
+        b.ap.return_to_launch()
+        expected = FlightMode.RETURN_TO_LAUNCH
+    else:
+        b.ap.pilot_take_control(FlightMode.HOLD)
+        expected = FlightMode.HOLD
+    assert not b.ap.failsafe_active and b.ap.intended_mode == expected
+    if expected == FlightMode.HOLD:
+        b.ap.land()
+    b.run(120.0, until=lambda: not b.ap.armed)
+    assert not b.ap.armed and b.ap.mode == FlightMode.HOLD
