@@ -125,14 +125,16 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                  address: str | None = None,
                  faults: list[str] | None = None,
                  ground_images: list[Path] | None = None,
-                 vehicle: str = "simulated") -> CampaignSummary:
+                 vehicle: str = "simulated",
+                 only_faults: set[str] | None = None) -> CampaignSummary:
     """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
     :class:`~eaglemission.missions.campaign_executors.Executor`); with ``out_dir`` each finished
     run is stored there and a rerun flies only the missing ones
     (:mod:`eaglemission.missions.campaign_resume`). ``faults``: fault kinds, one drawn per run
     (:mod:`.campaign_faults`). ``ground_images``: each run's ground is one of these photos.
     ``vehicle``: ``simulated`` (virtual time) or ``emulator`` (real time through MAVSDK,
-    :mod:`.campaign_emulator`)."""
+    :mod:`.campaign_emulator`). ``only_faults``: fly only the runs whose drawn fault is one of
+    these (the same draws: the runs a change to those faults' path can alter)."""
     if vehicle not in VEHICLES:
         raise ValueError(f"vehicle: {vehicle!r} is not one of {', '.join(VEHICLES)}")
     base = load_config(config)
@@ -143,7 +145,11 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                         ground_images)
         if faults:
             cfg = with_drawn_fault(cfg, i, faults, seed)
+        if only_faults is not None and not (
+                cfg.faults is not None and {f.kind for f in cfg.faults.inject} & only_faults):
+            continue
         jobs.append((i, cfg.model_dump(mode="json"), out_dir, vehicle))
+    total = len(jobs)
     ex = make_executor(executor, workers=workers, address=address) \
         if isinstance(executor, str) else executor
     store = None if out_dir is None else \
@@ -172,7 +178,7 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
 
     if bar is not None:
         with bar:
-            task = bar.add_task(f"campaign ({ex.name})", total=runs, completed=len(results))
+            task = bar.add_task(f"campaign ({ex.name})", total=total, completed=len(results))
             for r in flown():
                 results.append(r)
                 ok = sum(x["success"] for x in results)

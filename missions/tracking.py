@@ -154,22 +154,23 @@ class TargetTracking:
         return any(math.dist(q, position_ned_m[:2]) <= radius and self._rejects(q)
                    for q in self.losses)
 
-    def check_heading(self, yaw_deg: float, position_ned_m: XYZ) -> None:
+    def check_heading(self, yaw_deg: float, position_ned_m: XYZ, camera: str = "") -> None:
         """One complete view's fitted heading of the candidate tracked in the fine approach.
         Once ``heading_min_views`` are in, an elongated target's headings must agree
         (:func:`heading_consistency` at least ``heading_min_consistency``): a candidate of
         another shape (a square box of the target's colour and area fits at whatever heading
         makes its perspective match) is rejected at its place and its track dropped; the loss
-        that follows applies ``on_target_lost`` at once."""
+        that follows applies ``on_target_lost`` at once. Each view is logged (``heading``),
+        the check on or off."""
         t, p = self.cfg.target, self.p
-        if p.heading_min_consistency <= 0 or t.length_m < ELONGATED * t.width_m:
+        if t.length_m < ELONGATED * t.width_m:
             return
         self.headings_deg.append(yaw_deg)
         n = len(self.headings_deg)
-        if n < p.heading_min_views:
-            return
-        r = heading_consistency(self.headings_deg)
-        if r >= p.heading_min_consistency:
+        r = heading_consistency(self.headings_deg) if n >= p.heading_min_views else None
+        self.log.write("heading", camera=camera, yaw_deg=round(yaw_deg, 1), views=n,
+                       consistency=None if r is None else round(r, 4))
+        if r is None or r >= p.heading_min_consistency:
             return
         place = self._place_of(position_ned_m)
         self.losses.setdefault(place, 0)
@@ -262,7 +263,7 @@ class TargetTracking:
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
             if accepted and meas.fit_hint is not None and pol.camera_choice == "fine":
-                self.check_heading(meas.fit_hint.yaw_deg, pos)
+                self.check_heading(meas.fit_hint.yaw_deg, pos, cam_id)
             fresh = accepted
         filt = self.filter.state(frame.timestamp_ns)
         switched = None

@@ -12,7 +12,10 @@ Without a fault the newest telemetry sample is delivered as it is. While one is 
   stamped on receipt. After the window a fresh sample or setpoint goes straight through and
   overtakes the ones still in flight (dropped: never an older one after a newer one);
 * ``link_duplicate``: every message arrives twice (the copy with a later receipt stamp);
-* ``link_reorder``: every message overtakes the one before it (which arrives after it);
+* ``link_reorder``: every message overtakes the one before it (which arrives after it).
+  With either, the copy or the late message enters the ground's history too, stamped on
+  receipt, as the ``mavsdk`` driver's history takes what MAVSDK hands it (a late one then
+  stands for a position already left: ``state_at`` near it is off by one message's motion);
 * ``autopilot_clock_jump``: the autopilot's timestamps (``autopilot_time_ns``) jump by
   ``jump_s`` and stay shifted (an autopilot clock reset or resync).
 """
@@ -144,5 +147,6 @@ class LinkTiming:
             late = self._pending
             self._pending = None
             self._shown = replace(late, timestamp_ns=max(now_ns, self._shown.timestamp_ns + 1))
+            self.ground.append(self._shown)  # received: in the history as the driver keeps it
         assert self._shown is not None
         return self._shown

@@ -251,3 +251,19 @@ def test_a_stopped_emulator_campaign_stops_its_emulators(small_yaml: Path,
     while _sitl_vehicles() & started:
         assert time.monotonic() < deadline, f"emulators left running: {_sitl_vehicles() & started}"
         time.sleep(0.2)
+
+
+def test_only_faults_flies_the_runs_of_those_kinds_from_the_same_draws(small_yaml: Path) -> None:
+    """``fault_campaign.py --only-faults``: after a change to one fault's path, the runs it can
+    alter are flown again, drawn as in the whole campaign."""
+    from eaglemission.missions.campaign_faults import with_drawn_fault
+
+    kinds = ["camera_drop", "slow_frame"]
+    base = load_config(str(small_yaml), check_plugins=False)
+    drawn = {i: with_drawn_fault(base, i, kinds, SEED).faults for i in range(4)}
+    expected = sorted(i for i, f in drawn.items() if f is not None
+                      and f.inject[0].kind == "slow_frame")
+    summary = run_campaign(str(small_yaml), runs=4, seed=SEED, workers=1, faults=kinds,
+                           only_faults={"slow_frame"})
+    assert [r["run"] for r in summary.runs] == expected and len(expected) == 2
+    assert {r["fault"] for r in summary.runs} == {"slow_frame"}

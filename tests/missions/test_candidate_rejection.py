@@ -203,6 +203,8 @@ def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_a
     assert any("rejected: fitted heading inconsistent" in t and "north 37." in t
                for t in texts), texts
     assert any("searched again from its start" in t for t in texts), texts
+    heads = [h for h in out.log.of_kind("heading") if h["consistency"] is not None]
+    assert heads and min(h["consistency"] for h in heads) < 0.6 <= heads[0]["consistency"]
     assert ev.reached_grasp_ready and ev.final_state == "DONE", ev.explanation
     assert ev.horizontal_error_m is not None and ev.horizontal_error_m < 0.05
     assert not ev.violations

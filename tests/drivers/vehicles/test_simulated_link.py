@@ -164,3 +164,26 @@ async def test_state_at_sees_fresh_samples_again_after_the_window() -> None:
     at = v.state_at(s.timestamp_ns)
     assert at is not None and _same_sample(at, s)
     assert clock.now_ns() - s.timestamp_ns < 25_000_000  # fresh: one 50 Hz period at most
+
+
+@pytest.mark.parametrize("fault", ["reorder", "duplicate"])
+async def test_a_late_or_repeated_message_enters_the_history_stamped_on_receipt(
+        fault: str) -> None:
+    """The mavsdk driver's history takes every message MAVSDK hands it, stamped on receipt:
+    a late (reordered) message stands there for a position already left, a copy repeats its
+    position at a later stamp. ``state_at`` of the simulated vehicle must see the same."""
+    v, clock = await _flying_north()
+    getattr(v, f"inject_link_{fault}")(1.0)
+    seen: list[VehicleState] = []
+    for _ in range(int(0.8 / STEP_S)):
+        clock.advance(STEP_S)
+        s = v.state()
+        if not seen or s.timestamp_ns != seen[-1].timestamp_ns:
+            seen.append(s)
+    again = [(a, b) for a, b in zip(seen, seen[1:])
+             if b.autopilot_time_ns is not None and a.autopilot_time_ns is not None
+             and b.autopilot_time_ns <= a.autopilot_time_ns]
+    assert again, f"no {fault}d message delivered"
+    for _, late in again:
+        at = v.state_at(late.timestamp_ns)
+        assert at is not None and _same_sample(at, late)
