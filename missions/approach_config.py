@@ -108,7 +108,7 @@ class ApproachConfig(BaseModel):
         "its complete close-range views: below this mean resultant length of the doubled "
         "headings (1 = all agree, 0 = spread evenly) the candidate is rejected as not the "
         "target's shape (a same-coloured box of the target's area; 0, the default, disables it; "
-        "0.6 rejects campaign run 521's box, but true targets reach 0.74: docs/mission.md, "
+        "0.6 rejects campaign run 521's box but also 11 of 762 true targets: docs/mission.md, "
         "\"candidate rejection\"; not in the paper)")
     heading_min_views: int = Field(12, ge=2, description="complete close-range views before "
                                    "heading_min_consistency is judged")

@@ -68,6 +68,10 @@ def noticed(recs: list[dict[str, Any]], kind: str, t_inj_ns: int) -> bool:
     return not needles or any(n in line for line in after for n in needles)
 
 
+GRASPED_ELSEWHERE = "another object was grasped"
+"""The end of :func:`grasped_elsewhere`'s reason (a run's ``fault_failure``)."""
+
+
 def grasped_elsewhere(horizontal_error_m: float | None, target: TargetConfig) -> str:
     """Why a GRASP_READY was not on the target: the true tool point lies beyond half the
     target's larger side from its centre (another object was grasped); "" when on it or
@@ -76,7 +80,8 @@ def grasped_elsewhere(horizontal_error_m: float | None, target: TargetConfig) ->
     if horizontal_error_m is None or horizontal_error_m <= half_m:
         return ""
     return (f"GRASP_READY {horizontal_error_m:.2f} m from the true target, beyond its half "
-            f"size {half_m:.2f} m: another object was grasped")
+            f"size {half_m:.2f} m: {GRASPED_ELSEWHERE}")
+
 
 
 def judge(out: Any) -> dict[str, Any]:
@@ -180,8 +185,11 @@ def print_fault_table(runs: list[dict[str, Any]]) -> int:
     if tol:
         done = sum(bool(r.get("reached_grasp_ready")) and r.get("final_state") == "DONE"
                    for r in tol)
+        elsewhere = sum(GRASPED_ELSEWHERE in (r.get("fault_failure") or "") for r in tol)
+        on = done - elsewhere
         c.print(f"tolerable faults completed (GRASP_READY + DONE): {done}/{len(tol)} "
-                f"({done / len(tol):.0%})")
+                f"({done / len(tol):.0%}); on the target: {on}/{len(tol)} "
+                f"({on / len(tol):.1%})")
     fails = fault_failures(runs)
     c.print(f"runs in their expected outcome: {len(runs) - len(fails)}/{len(runs)}")
     for line in fails:

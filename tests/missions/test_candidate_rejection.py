@@ -75,17 +75,24 @@ def test_a_rejected_candidate_resumes_the_search_or_takes_the_configured_action(
     assert not lost_resumes_cruise(Snapshot())
 
 
-@pytest.fixture
-def run_645() -> MissionFile:
-    """World 645 of ``fault_campaign.py --seed 3 --binning 2``: a blue box 0.41 m wide on the
-    route at N 8.6 m is confirmed first; the fine approach's plane fit refuses it every time."""
-    cfg = load_config(check_plugins=False)
-    d = cfg.model_dump(mode="json")
+def campaign_world(world: dict[str, object], **sections: object) -> MissionFile:
+    """The embedded mission with both cameras binned 2x2 (``fault_campaign.py --binning 2``),
+    a campaign run's world params and other sections (``faults``, ``mission``...) replaced."""
+    d = load_config(check_plugins=False).model_dump(mode="json")
     for cam in d["cameras"].values():
         w, h = cam["resolution_px"]
         cam["resolution_px"] = [w // 2, h // 2]
         cam["pixel_size_um"] *= 2
-    d["world"]["params"] = {
+    d["world"]["params"] = world
+    d.update(sections)
+    return MissionFile.model_validate(d)
+
+
+@pytest.fixture
+def run_645() -> MissionFile:
+    """World 645 of ``fault_campaign.py --seed 3 --binning 2``: a blue box 0.41 m wide on the
+    route at N 8.6 m is confirmed first; the fine approach's plane fit refuses it every time."""
+    return campaign_world({
         "seed": 1726916654, "target_north_m": 21.656, "target_east_m": -0.770,
         "target_yaw_deg": -178.74, "ground_texture": "snow", "light_gain": 1.28,
         "noise_sigma": 2.0, "wind_ne_mps": [0.061, -0.719], "mount_error_deg": 2.0,
@@ -94,8 +101,7 @@ def run_645() -> MissionFile:
             {"kind": "box", "north_m": 32.351, "east_m": -5.634, "size_m": 0.584,
              "height_m": 0.083, "color_bgr": [152, 77, 201]},
             {"kind": "box", "north_m": 8.621, "east_m": 0.782, "size_m": 0.406,
-             "height_m": 0.196, "color_bgr": [41, 85, 230]}]}
-    return MissionFile.model_validate(d)
+             "height_m": 0.196, "color_bgr": [41, 85, 230]}]})
 
 
 def test_a_distractor_lost_three_times_is_rejected_and_the_target_is_grasped(
@@ -173,14 +179,9 @@ def run_521() -> MissionFile:
     approach): the target at N 28.0 m is seen once in cruise, unconfirmed; a red box 0.32 m
     square (the target's colour and top area, 0.40 x 0.25 m) at N 37.8 m is confirmed, and
     every plane fit explains it, each at another heading."""
-    cfg = load_config(check_plugins=False)
-    d = cfg.model_dump(mode="json")
-    for cam in d["cameras"].values():
-        w, h = cam["resolution_px"]
-        cam["resolution_px"] = [w // 2, h // 2]
-        cam["pixel_size_um"] *= 2
-    d["mission"]["params"] = {**d["mission"]["params"], "heading_min_consistency": 0.6}
-    d["world"]["params"] = {
+    mission = load_config(check_plugins=False).model_dump(mode="json")["mission"]
+    mission["params"] = {**mission["params"], "heading_min_consistency": 0.6}
+    return campaign_world({
         "seed": 1505987167, "target_north_m": 28.017, "target_east_m": 2.349,
         "target_yaw_deg": -74.82, "ground_texture": "soil", "light_gain": 0.722,
         "noise_sigma": 2.0, "wind_ne_mps": [0.858, -0.451], "mount_error_deg": 2.0,
@@ -189,10 +190,10 @@ def run_521() -> MissionFile:
             {"kind": "box", "north_m": 37.806, "east_m": -3.163, "size_m": 0.324,
              "height_m": 0.1996, "color_bgr": [29, 25, 177]},
             {"kind": "disc", "north_m": 23.219, "east_m": -2.767, "size_m": 0.588,
-             "height_m": 0.111, "color_bgr": [226, 195, 66]}]}
-    d["faults"] = {"inject": [{"kind": "command_denied", "at_state": "COARSE_APPROACH",
-                               "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]}
-    return MissionFile.model_validate(d)
+             "height_m": 0.111, "color_bgr": [226, 195, 66]}]},
+        faults={"inject": [{"kind": "command_denied", "at_state": "COARSE_APPROACH",
+                            "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]},
+        mission=mission)
 
 
 def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_again(

@@ -16,7 +16,7 @@ from eaglemission.missions.campaign_faults import grasped_elsewhere, noticed
 from eaglemission.missions.log import read_log
 from fault_harness import Fault, fly_with_faults
 
-from eaglemission.config import MissionFile
+from eaglemission.config import MissionFile, TargetConfig
 from eaglemission.faults_outcomes import expected_action
 
 TOLERABLE = {
@@ -90,10 +90,24 @@ def test_campaign_with_faults_ends_each_run_in_its_expected_outcome(
 def test_a_grasp_beyond_the_target_is_another_object() -> None:
     """Found by the 1,000-run fault campaign (run 521): GRASP_READY + DONE on a distractor of
     the target's colour 11.2 m away counted as a completed tolerable fault."""
-    from eaglemission.config import TargetConfig
-
     box = TargetConfig(length_m=0.3, width_m=0.2)
     assert grasped_elsewhere(None, box) == "" and grasped_elsewhere(0.069, box) == ""
     assert grasped_elsewhere(0.15, box) == ""  # on the box, if not precise (the evaluator's)
     why = grasped_elsewhere(11.238, box)
     assert "11.24 m from the true target" in why and "another object" in why
+
+
+def test_the_fault_table_counts_a_grasp_elsewhere_as_not_on_the_target(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from eaglemission.missions.campaign_faults import print_fault_table
+
+    def run(i: int, failure: str) -> dict[str, object]:
+        return {"run": i, "fault": "command_denied", "expected": "complete",
+                "final_state": "DONE", "reached_grasp_ready": True, "violations": [],
+                "expected_outcome": not failure, "fault_failure": failure,
+                "log_complete": True, "time_to_safe_s": None, "explanation": ""}
+
+    elsewhere = grasped_elsewhere(11.238, TargetConfig(length_m=0.4, width_m=0.25))
+    assert print_fault_table([run(0, ""), run(1, elsewhere)]) == 1
+    out = capsys.readouterr().out
+    assert "GRASP_READY + DONE): 2/2 (100%); on the target: 1/2 (50.0%)" in out
