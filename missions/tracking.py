@@ -81,9 +81,8 @@ class TargetTracking:
         self._last_range_m: float | None = None
         self.losses: dict[tuple[float, float], int] = {}
         """Times the target was lost near each place (north, east m of the first loss there)."""
-        self.last_losses = 0
-        """Losses counted at the place of the latest one (0: the target was never tracked)."""
         self.last_place: tuple[float, float] | None = None
+        """Where the latest loss was counted (None: the target was never tracked)."""
         self.misshapen: dict[tuple[float, float], str] = {}
         """Places of candidates whose fitted heading disagrees across views (the reason)."""
         self.headings_deg: list[float] = []
@@ -112,17 +111,22 @@ class TargetTracking:
         Returns the place, None when the target was never tracked."""
         self.headings_deg = []
         if self.last_target is None:
-            self.last_losses, self.last_place = 0, None
+            self.last_place = None
             return None
         place = self._place_of(self.last_target)
         n = self.losses[place] = self.losses.get(place, 0) + 1
-        self.last_losses, self.last_place = n, place
+        self.last_place = place
         times = "1 time" if n == 1 else f"{n} times"
         self.log.write("event", source="mission",
                        text=f"target lost {times} near north {place[0]:.1f} m east "
                        f"{place[1]:.1f} m" + (": candidate rejected, its estimates are ignored"
                                               if self.just_rejected else ""))
         return place
+
+    @property
+    def last_losses(self) -> int:
+        """Losses counted at the place of the latest one (0: the target was never tracked)."""
+        return 0 if self.last_place is None else self.losses[self.last_place]
 
     def _place_of(self, position_ned_m: XYZ) -> tuple[float, float]:
         """The counted place within ``search_radius_m + confirm_radius_m`` (as reacquisition
