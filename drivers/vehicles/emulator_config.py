@@ -14,6 +14,7 @@ from eaglemission.drivers.vehicles.dynamics import (
     rangefinder_reading_m,
 )
 from eaglemission.drivers.vehicles.mavlink_dialect import M
+from eaglemission.drivers.vehicles.px4 import PX4_SITL_CLOCK_RATE
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.types import FlightMode
@@ -90,6 +91,11 @@ class EmulatorConfig(BaseModel):
     """Home in the EKF-origin frame of LOCAL_POSITION_NED (PX4: decimetres apart)."""
     initial_yaw_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
     speedup: Annotated[float, Field(gt=0, le=50)] = 1.0
+    clock_rate: Annotated[float, Field(ge=0.9, le=1.1)] = PX4_SITL_CLOCK_RATE
+    """PX4's clock against the host's (before ``speedup``): SITL's runs slow, recorded 0.65-1.6 %
+    (fact 22: HIGHRES_IMU.time_usec against the recording host), so its stamps fall behind the
+    host's by ~8 ms a second and its durations (HEARTBEAT period, COM_DISARM_LAND) look ~0.8 %
+    longer. 1.0 = a hardware autopilot's crystal (ppm)."""
     heartbeat_on_change: bool = False
     """Also send HEARTBEAT (and CURRENT_MODE) at once when mode/armed change. PX4 v1.16 does
     not (recorded d: 681 HEARTBEATs 1.005-1.048 s apart, none on change, so a mode change shows

@@ -70,9 +70,17 @@ def _window_s(duration_s: float, origin: str) -> float:
     return float(duration_s)
 
 
+def _wrap(m: Any, name: str, value: int) -> int:
+    """``value`` wrapped to field ``name``'s unsigned width (``time_usec`` is a uint32 in
+    SERVO_OUTPUT_RAW, a uint64 elsewhere: PX4 sends both)."""
+    bits = {"uint8_t": 8, "uint16_t": 16, "uint32_t": 32}.get(
+        m.fieldtypes[m.fieldnames.index(name)], 64)
+    return int(value % 2**bits)
+
+
 def shift_stamps(data: bytes, jump_us: int, parser: Any, packer: Any) -> bytes:
     """``data`` (one datagram of MAVLink) with each message's ``time_boot_ms`` / ``time_usec``
-    shifted by ``jump_us``; messages pymavlink cannot parse pass unchanged."""
+    shifted by ``jump_us``; messages pymavlink cannot parse or pack again pass unchanged."""
     try:
         msgs = parser.parse_buffer(data) or []
     except Exception:  # not MAVLink we know: pass it on as it came
@@ -85,14 +93,19 @@ def shift_stamps(data: bytes, jump_us: int, parser: Any, packer: Any) -> bytes:
         if "time_boot_ms" not in fields and "time_usec" not in fields:
             out += m.get_msgbuf()
             continue
+        original = bytes(m.get_msgbuf())
         # unsigned counters: a jump back past zero wraps, as the autopilot's own counter would
         if "time_boot_ms" in fields:
-            m.time_boot_ms = (int(m.time_boot_ms) + jump_us // 1000) % 2**32
+            m.time_boot_ms = _wrap(m, "time_boot_ms", int(m.time_boot_ms) + jump_us // 1000)
         if "time_usec" in fields:
-            m.time_usec = (int(m.time_usec) + jump_us) % 2**64
+            m.time_usec = _wrap(m, "time_usec", int(m.time_usec) + jump_us)
         packer.seq, packer.srcSystem = m.get_seq(), m.get_srcSystem()
         packer.srcComponent = m.get_srcComponent()
-        out += m.pack(packer)
+        try:
+            out += m.pack(packer)
+        except Exception as exc:  # noqa: BLE001 - a message we cannot re-encode goes as it came
+            log.warning("fault relay: %s not re-stamped (%s)", m.get_type(), exc)
+            out += original
     return bytes(out)
 
 
@@ -224,8 +237,11 @@ class LinkFaultRelay:
                         with self._lock:
                             jump = self._jump_us
                         if jump:
-                            data = shift_stamps(data, jump, parser, packer)
-                            self.counts["restamped"] += 1
+                            try:
+                                data = shift_stamps(data, jump, parser, packer)
+                                self.counts["restamped"] += 1
+                            except Exception:  # a relay that dies cuts the link for good
+                                log.exception("fault relay: datagram passed on un-stamped")
                     self._accept(key.data, data)
                 self._release()
         except OSError as exc:  # sockets closed under us: the relay ends

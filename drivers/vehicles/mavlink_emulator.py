@@ -23,7 +23,9 @@ missions (:mod:`.emulator_missions`), streams (:mod:`.emulator_messages`), the l
 (:mod:`.emulator_link`).
 
 Time: ``speedup`` scales the emulator's simulated time (dynamics and its own timers: offboard
-loss, landing detection, auto-disarm, failsafes, and the HEARTBEAT period). The other stream
+loss, landing detection, auto-disarm, failsafes, and the HEARTBEAT period); ``clock_rate`` is
+PX4's clock against the host's (SITL's runs ~0.8 % slow, recorded), so the stamps it sends
+(``time_boot_ms``) fall behind the host's clock as PX4's do. The other stream
 rates stay in wall time because MAVSDK's timers do (it declares a link dead after 3 s without
 HEARTBEAT). Offboard
 setpoints arrive every 50 ms wall, i.e. every ``0.05 * speedup`` s of emulator time: keep that
@@ -119,7 +121,7 @@ def stream_rates_hz(cfg: EmulatorConfig) -> dict[str, float]:
     second (MAVSDK's link timers only need >= 1 Hz of wall time)."""
     rates = {**PX4_ONBOARD_RATES_HZ, **cfg.stream_rates_hz}
     if not cfg.heartbeat_on_change:
-        rates["HEARTBEAT"] *= cfg.speedup
+        rates["HEARTBEAT"] *= cfg.speedup * cfg.clock_rate
     return rates
 
 
@@ -436,7 +438,7 @@ class Px4Emulator:
         with self._lock:
             for data in self._link.inbound(wall):
                 self._handle_bytes(data)
-            dt = max(0.0, wall - self._last_wall) * self.config.speedup
+            dt = max(0.0, wall - self._last_wall) * self.config.speedup * self.config.clock_rate
             self._last_wall = wall
             self._advance(min(dt, 0.5))
             self._streams(wall)

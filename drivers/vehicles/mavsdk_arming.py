@@ -13,8 +13,9 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from eaglemission.drivers.vehicles.events import EVENT_STATUS
 from eaglemission.drivers.vehicles.hil_truth import MSG_ID as HIL_MSG_ID
@@ -112,3 +113,21 @@ async def request_truth(v: MavsdkVehicle) -> None:
         await v.bounded("request ground truth", lambda: md.send_command(msg))
     except VehicleError as exc:
         log.info("no ground-truth stream requested: %s", exc)
+
+
+async def set_takeoff_altitude(v: MavsdkVehicle, act: Any, altitude_m: float) -> None:
+    """MIS_TAKEOFF_ALT set and read back: once on a local PX4 SITL the set returned SUCCESS
+    but PX4 then took off to its 2.5 m default ("Using default takeoff altitude: 2.5 m") and
+    the mission's TAKEOFF timed out. A second try, then a refusal naming the parameter."""
+    got = math.nan
+    for _ in range(2):
+        await v.bounded("takeoff()", lambda: act.set_takeoff_altitude(altitude_m),
+                        params=(altitude_m,))
+        got = await v.get_param("MIS_TAKEOFF_ALT")
+        if abs(got - altitude_m) < 0.05:
+            return
+        log.warning("takeoff(): MIS_TAKEOFF_ALT reads %.2f m after setting %.2f m: again",
+                    got, altitude_m)
+    raise VehicleError("PARAM_NOT_SET", "takeoff()", (altitude_m,),
+                       f"MIS_TAKEOFF_ALT reads {got:.2f} m after setting it to "
+                       f"{altitude_m:.2f} m twice: not taking off to an unknown height")

@@ -362,8 +362,7 @@ class MavsdkVehicle:
         if not self._c.in_air and self._c.mode in (FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH):
             await mavsdk_arming.rearm_after_landing(self, "takeoff()")
         act = self.plugins["Action"]
-        await self.bounded("takeoff()", lambda: act.set_takeoff_altitude(float(altitude_m)),
-                            params=(altitude_m,))
+        await mavsdk_arming.set_takeoff_altitude(self, act, float(altitude_m))
         self._offboard.stop_streaming()
         await self.mode_command("takeoff()", act.takeoff, {FlightMode.TAKEOFF},
                                  params=(altitude_m,), also_ok=frozenset({FlightMode.HOLD}))

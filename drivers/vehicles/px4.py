@@ -32,6 +32,11 @@ MODE_TO_PX4: dict[FlightMode, tuple[int, int]] = {
 }
 PX4_TO_MODE: dict[tuple[int, int], FlightMode] = {v: k for k, v in MODE_TO_PX4.items()}
 
+PX4_SITL_CLOCK_RATE = 0.992
+"""PX4 SITL's clock against the host's: its stamps advance 0.65-1.6 % less than the recording
+host's clock (recorded fact 22); a local SITL build here ran 2 % slow while the mission loaded
+both cores (docs/vehicles.md, "PX4's clock")."""
+
 # MAV_MODE_FLAG bits.
 FLAG_CUSTOM_MODE = 1
 FLAG_AUTO = 4

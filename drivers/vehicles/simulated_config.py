@@ -9,6 +9,7 @@ from typing import Annotated, Literal
 
 from eaglemission.drivers.vehicles.autopilot import AutopilotParams, FailsafeAction
 from eaglemission.drivers.vehicles.dynamics import DynamicsParams, RangefinderParams
+from eaglemission.drivers.vehicles.px4 import PX4_SITL_CLOCK_RATE
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.types import Waypoint
@@ -30,6 +31,9 @@ class SimulatedVehicleConfig(BaseModel):
     home_longitude_deg: Annotated[float, Field(ge=-180, le=180)] = 8.545594
     home_altitude_amsl_m: Annotated[float, Field(allow_inf_nan=False)] = 489.4
     initial_yaw_deg: Annotated[float, Field(ge=-180, le=180)] = 0.0
+    autopilot_clock_rate: Annotated[float, Field(ge=0.9, le=1.1)] = PX4_SITL_CLOCK_RATE
+    """The autopilot's clock (its telemetry stamps) against the host's: PX4 SITL's runs ~0.8 %
+    slow (recorded); 1.0 for a hardware autopilot's crystal."""
     initial_altitude_m: _NonNeg = 0.0  # > 0: start armed, hovering in HOLD (test convenience)
     telemetry_rate_hz: Annotated[float, Field(ge=1, le=1000)] = 50.0
     history_span_s: _Pos = 2.0

@@ -297,8 +297,8 @@ class SimulatedModel:
         rf = self.config.rangefinder
         noise = self._rangefinder_noise.next() if rf.enabled else 0.0
         state = estimated_state(dyn, self.autopilot, self.home, rf, noise)
-        sample = replace(state, autopilot_time_ns=dyn.time_ns - self._boot_ns
-                         + self.link.clock_offset_ns)
+        since_boot_ns = int((dyn.time_ns - self._boot_ns) * self.config.autopilot_clock_rate)
+        sample = replace(state, autopilot_time_ns=since_boot_ns + self.link.clock_offset_ns)
         self._history.append(sample)
         self.link.send(sample)
 

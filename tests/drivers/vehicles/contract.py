@@ -295,12 +295,18 @@ class VehicleContract:
         first = await start_offboard_here(b)
         goal = Setpoint(first.north_m + 8.0, first.east_m - 3.0, first.down_m - 1.0,
                         wrap_deg(first.yaw_deg + 45.0))
-        s = await stream_until(b, goal, lambda st: _dist(st.position_ned_m, goal.position_ned_m) < 0.5,
-                               MOVE_TIMEOUT_S, "offboard point")
+        # reached and settled: PX4 SITL overshot an 8.5 m move by 0.8-1.0 m and took ~6 s back
+        # (its recorded 2 m steps overshoot by up to 22 %), so "arrived" is near and slow
+        s = await stream_until(b, goal, lambda st: _dist(st.position_ned_m, goal.position_ned_m)
+                               < 0.5 and _dist(st.velocity_ned_mps, (0.0, 0.0, 0.0)) < 0.3,
+                               MOVE_TIMEOUT_S, "offboard point, settled")
         assert s.flight_mode == FlightMode.OFFBOARD
-        await stream(b, goal, 1.0)
-        s = b.vehicle.state()
-        assert _dist(s.position_ned_m, goal.position_ned_m) < 0.5
+        worst = 0.0
+        for _ in range(20):  # ...and held for 1 s
+            await stream(b, goal, SETPOINT_PERIOD_S)
+            s = b.vehicle.state()
+            worst = max(worst, _dist(s.position_ned_m, goal.position_ned_m))
+        assert worst < 0.5, f"[{b.name}] left the point by {worst:.2f} m while holding it"
         assert abs(wrap_deg(s.yaw_deg - goal.yaw_deg)) < 5.0
         await b.vehicle.stop_offboard()
         await b.wait(lambda st: st.flight_mode != FlightMode.OFFBOARD, 2.0 + b.report_lag_s,

@@ -141,6 +141,28 @@ def test_a_clock_jump_restamps_the_autopilots_messages(ends: tuple[LinkFaultRela
     assert (msg.q1, msg.rollspeed) == (1.0, pytest.approx(0.1))
 
 
+def test_a_jump_back_past_zero_wraps_each_stamp_at_its_own_width(
+        ends: tuple[LinkFaultRelay, Ends]) -> None:
+    """PX4 sends SERVO_OUTPUT_RAW, whose ``time_usec`` is a uint32 (a uint64 elsewhere). A
+    -30 s jump 20 s after PX4's boot wrapped it as a uint64: the re-encoding raised, the relay
+    thread died and the link stayed cut for the rest of the flight (a local PX4 SITL, issue
+    13/16); the emulator sends no SERVO_OUTPUT_RAW, so its campaigns never met it."""
+    relay, e = ends
+    relay.inject_autopilot_clock_jump(-30.0)
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    e.down(bytes(mavlink.MAVLink_servo_output_raw_message(20_000_000, 0, *[1500] * 8).pack(mav)))
+    e.down(bytes(mavlink.MAVLink_hil_actuator_controls_message(20_000_000, [0.0] * 16, 0,
+                                                                 0).pack(mav)))
+    e.down(_attitude(20_000, seq=9))
+    got = [m for _, d in e.received(e.client, 0.5) for m in mavlink.MAVLink(None).parse_buffer(d)]
+    by_type = {m.get_type(): m for m in got}
+    assert by_type["SERVO_OUTPUT_RAW"].time_usec == (20_000_000 - 30_000_000) % 2**32
+    assert by_type["HIL_ACTUATOR_CONTROLS"].time_usec == (20_000_000 - 30_000_000) % 2**64
+    assert by_type["ATTITUDE_QUATERNION"].time_boot_ms == (20_000 - 30_000) % 2**32
+    e.down(_attitude(21_000, seq=10))  # and the relay is still relaying
+    assert e.received(e.client, 0.3)
+
+
 def test_the_simulators_truth_is_not_on_the_faulty_link(ends: tuple[LinkFaultRelay, Ends]) -> None:
     relay, e = ends
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)

@@ -299,11 +299,48 @@ def test_fact_auto_disarm_2_02_s_after_landing_detected(px4_tlogs: Path) -> None
         # after the disarm), not at once; HEARTBEAT runs on the emulator's clock
         gcs.wait(lambda: not emu_armed_hb(gcs), 3.0, "disarmed HEARTBEAT")
         hb = [s for _, s, _ in gcs.out("HEARTBEAT")]
-    # COM_DISARM_LAND = 2 s of PX4's clock, which runs ~0.7 % slow against the recording's
-    assert abs((disarm - detected) * 1.007 - statistics.mean(rec)) < 0.06, disarm - detected
+    # COM_DISARM_LAND = 2 s of PX4's clock, which runs ~0.8 % slow against the host's (fact 22:
+    # the emulator's clock_rate), so 2.02 s of wall time, as recorded
+    assert abs((disarm - detected) - statistics.mean(rec)) < 0.03, disarm - detected
     gaps = [b - a for a, b in zip(hb, hb[1:], strict=False)]
     assert min(gaps) > 0.9, f"a HEARTBEAT was sent on an arming / mode change: {gaps}"
     assert max(gaps) < 1.1, gaps
+
+
+# ---------------------------------------------------------------------------------------------
+# fact 22: PX4's clock runs slow against the host's
+# ---------------------------------------------------------------------------------------------
+def clock_rate(stamped: list[tuple[float, float]]) -> float:
+    """Autopilot seconds per host second from (host receipt s, autopilot stamp s) pairs: the
+    slope of the lower envelope of the offsets (the least-delayed sample of each first and last
+    fifth), so link jitter does not bias it."""
+    n = len(stamped) // 5
+    first = min(stamped[:n], key=lambda p: p[0] - p[1])
+    last = min(stamped[-n:], key=lambda p: p[0] - p[1])
+    return (last[1] - first[1]) / (last[0] - first[0])
+
+
+def recorded_clock_rates(tlogs: Path) -> list[float]:
+    out = []
+    for name in ("a", "b", "c", "d", "e", "f1", "f2", "g", "h1", "h2", "h3", "i"):
+        px4_msgs, _, _ = scenario(tlogs, name)
+        imu = [(t, m.time_usec * 1e-6) for t, m in px4_msgs if m.get_type() == "HIGHRES_IMU"]
+        out.append(clock_rate(imu))
+    return out
+
+
+def test_fact_px4_s_clock_runs_slow_against_the_host_s(px4_tlogs: Path) -> None:
+    rec = recorded_clock_rates(px4_tlogs)
+    # a-c: 1.4-1.6 % slow; d-i: 0.65-0.95 % (README: 0.66-0.90 %)
+    assert all(0.98 < r < 0.995 for r in rec), rec
+    emu = Px4Emulator(EmulatorConfig(), record=True)  # real time, the default clock
+    with Gcs(emu) as gcs:
+        time.sleep(6.0)
+        att = [(t.wall_s, t.msg.time_boot_ms * 1e-3) for t in gcs.emu.traffic
+               if t.direction == "out" and t.msg.get_type() == "ATTITUDE_QUATERNION"]
+    assert len(att) > 200
+    # the emulator's stamps fall behind the host's clock as PX4's do (1.000 before fact 22)
+    assert min(rec) < clock_rate(att) < max(rec), (clock_rate(att), rec)
 
 
 def emu_armed_hb(gcs: Gcs) -> bool:
