@@ -11,6 +11,8 @@ Facts (README of the recordings, "Behaviour worth reproducing (d-i)"):
 * 24 (scenario e): re-arming 0.5 s and 1.0 s after "Landing detected", still armed in LAND, is
   ACCEPTED without an "Armed by" message and no disarm follows; the climb starts sooner than
   from disarmed (no second spool-up); 3.0 s after, PX4 has already disarmed.
+* 22 (all recordings): PX4's clock runs 0.65-1.6 % slow against the host's (HIGHRES_IMU
+  time_usec against the receipt times); the emulator's ``clock_rate``.
 * PX4's auto-disarm timer keeps running through a takeoff PX4 has not detected yet
   (Commander's ``_auto_disarm_landed`` hysteresis on ``landed``): a takeoff commanded late in
   the window is disarmed mid-takeoff -- what issue 13's contract run on PX4 showed
