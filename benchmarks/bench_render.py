@@ -3,11 +3,17 @@ on one core, along the default mission's flight (cruise at 5 m, approach, stand-
 
 Usage::
 
-    python benchmarks/bench_render.py [--frames 60] [--threads 1] [--config FILE]
+    python benchmarks/bench_render.py [--frames 60] [--threads 1] [--config FILE] [--effects]
 
 Prints the median and 90th-percentile time per camera and per pair, the pair rate (target:
 >= 30 pairs/s, i.e. both cameras in <= 33 ms), and the ratio to a reference measured in the same
 run: one plain ``cv2.warpPerspective`` of a 1280x960 BGR image (the floor of the ground pass).
+
+``--effects``: the cost of each imaging effect (docs/cameras.md, "Imaging effects"): the same
+frames rendered with the config's world and with one effect turned on, interleaved frame by
+frame (so a load change on the machine hits every variant alike); per camera the median time
+and its ratio to the render without the effect. Motion blur uses the trajectory's speeds
+(3 m/s cruise, 1.5 m/s approach) and a 30 deg/s yaw rate; its cost per blur length follows.
 """
 
 from __future__ import annotations
@@ -48,14 +54,89 @@ def trajectory(cfg, n: int) -> list[tuple[tuple[float, float, float], tuple[floa
     return out
 
 
+EFFECTS = {
+    "white balance": {"white_balance_gains_bgr": (0.9, 1.0, 1.1)},
+    "Bayer (BayerRG)": {"bayer_pattern": "BayerRG"},
+    "JPEG q80": {"jpeg_quality": 80},
+    "motion blur": {"motion_blur": True},
+    "all four": {"white_balance_gains_bgr": (0.9, 1.0, 1.1), "bayer_pattern": "BayerRG",
+                 "jpeg_quality": 80, "motion_blur": True},
+}
+
+
+def exposure_start(poses, k: int, exposure_s: float, yaw_rate_degps: float = 30.0):
+    """The pose half an exposure before pose k: back along the trajectory at its speed (3 m/s
+    on the cruise half, 1.5 m/s on the approach), yawed back at ``yaw_rate_degps``."""
+    from eaglemission.drivers.cameras.synthetic import pose_moved_back
+
+    n = len(poses)
+    a, b = poses[max(0, k - 1)][0], poses[min(n - 1, max(1, k))][0]
+    d = np.subtract(b, a)
+    speed = 3.0 if k < n // 2 else 1.5
+    v = d / max(float(np.linalg.norm(d)), 1e-9) * speed
+    w = (0.0, 0.0, math.radians(yaw_rate_degps))
+    return pose_moved_back(poses[k][0], poses[k][1], tuple(v), w, exposure_s / 2)
+
+
+def effects(cfg, frames: int) -> None:
+    from eaglemission.drivers.cameras.imaging import motion_blur
+
+    sim = world_config(cfg)
+    variants = {"none": sim, **{name: sim.model_copy(update=u) for name, u in EFFECTS.items()}}
+    worlds = {name: SyntheticWorld(s, cfg.target) for name, s in variants.items()}
+    models = {cid: getattr(cfg.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
+    poses = trajectory(cfg, frames)
+    times = {(name, cid): [] for name in worlds for cid in models}
+    blur = {cid: [] for cid in models}
+    for w in worlds.values():
+        for m in models.values():
+            w.render(m, poses[0][0], poses[0][1], 1_000_000_000)
+    for k, (pos, q) in enumerate(poses):
+        t_ns = 1_000_000_000 + k * 33_333_333
+        for cid, m in models.items():
+            start = exposure_start(poses, k, m.exposure_s)
+            for name, w in worlds.items():
+                t = time.perf_counter()
+                _, truth = w.render(m, pos, q, t_ns, exposure_start_pose=start)
+                times[(name, cid)].append(time.perf_counter() - t)
+                if name == "motion blur":
+                    blur[cid].append(math.hypot(*truth.motion_blur_px))
+    print(f"imaging effects, {frames} frames per camera, 1280x960 (median ms, ratio to none):")
+    base = {cid: float(np.median(times[("none", cid)])) for cid in models}
+    for name in worlds:
+        cells = []
+        for cid in models:
+            med = float(np.median(times[(name, cid)]))
+            cells.append(f"{cid} {med * 1e3:6.2f} ms ({med / base[cid]:.2f} x)")
+        print(f"  {name:16s} " + "   ".join(cells))
+    for cid, b in blur.items():
+        print(f"  blur length {cid}: median {np.median(b):.1f} px, max {np.max(b):.1f} px")
+    img = worlds["none"].render(models["narrow"], poses[-1][0], poses[-1][1], 10**9)[0]
+    print(f"motion blur alone on a 1280x960 frame, by length (ratio to the plain narrow "
+          f"render, {base['narrow'] * 1e3:.1f} ms):")
+    for length in (1.0, 2.0, 4.0, 8.0, 12.0, 16.0, 24.0):
+        ts = []
+        for _ in range(7):
+            t = time.perf_counter()
+            motion_blur(img, length * 0.8, length * 0.6)
+            ts.append(time.perf_counter() - t)
+        med = float(np.median(ts))
+        print(f"  {length:4.0f} px  {med * 1e3:6.2f} ms  (+{med / base['narrow']:.2f} x)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--threads", type=int, default=1, help="OpenCV threads (1 = one core)")
     ap.add_argument("--config", default=None, help="mission YAML (default: embedded)")
+    ap.add_argument("--effects", action="store_true",
+                    help="the cost of each imaging effect instead (interleaved variants)")
     args = ap.parse_args()
     cv2.setNumThreads(args.threads)
     cfg = load_config(args.config, check_plugins=False)
+    if args.effects:
+        effects(cfg, args.frames)
+        return
     t0 = time.perf_counter()
     world = SyntheticWorld(world_config(cfg), cfg.target)
     t_world = time.perf_counter() - t0

@@ -5,6 +5,14 @@ with the clock's current time ``t`` (taken as mid-exposure) but renders the worl
 vehicle pose at ``t - dt``. The camera's stamps are therefore *late* by ``dt`` with respect to
 the telemetry, like an uncompensated USB/driver latency on a real rig: a pipeline that looks up
 the pose at the frame's stamp is off by ``dt``. Frame pacing is the caller's job.
+
+Motion blur (``SyntheticWorldConfig.motion_blur``): the camera works out the pose at the start
+of the exposure (``t - dt - exposure_s / 2``) from the true velocity and angular velocity at the
+rendered time when the pose source offers them (``motion_at``: the simulated vehicle's truth
+log), else asks the pose source for that pose; the world smears the frame along the image
+motion between the two, doubled (the whole exposure at constant velocity and angular rate).
+The end of the exposure is not asked for: it may lie past the clock's now, and the simulated
+vehicle's pose source holds its last row there (so two poses near now can be equal).
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
 from eaglemission.drivers.cameras.world import GroundTruth, SyntheticWorld
 from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig, world_config
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -25,7 +34,7 @@ from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.config import MissionFile, TargetConfig
 from eaglemission.context import WORLD, SharedContext
 from eaglemission.errors import ConfigError, GrabTimeout
-from eaglemission.geometry import CameraModel
+from eaglemission.geometry import CameraModel, R_to_quat, quat_to_R, rotation_from_vector
 from eaglemission.types import XYZ, Frame, Quat
 
 log = logging.getLogger(__name__)
@@ -130,16 +139,31 @@ class SyntheticCamera:
             self.stats["no_pose"] += 1
             raise GrabTimeout(self.camera_id, timeout_s)
         position, attitude = pose
-        image, truth = self.world.render(self.model, position, attitude, render_ns)
+        exposure = self.config.exposure_s if self.config.exposure_s is not None \
+            else self.model.exposure_s
+        start = None
+        if self.world.simulation.motion_blur:
+            start = self._exposure_start_pose(render_ns, position, attitude, float(exposure))
+        image, truth = self.world.render(self.model, position, attitude, render_ns,
+                                         exposure_start_pose=start)
         with self._lock:
             self.seq += 1
             seq = self.seq
         truth = replace(truth, timestamp_ns=t_ns, render_time_ns=render_ns)
         self.world.record_truth(self.camera_id, seq, truth)
         self.stats["frames"] += 1
-        exposure = self.config.exposure_s if self.config.exposure_s is not None \
-            else self.model.exposure_s
         return Frame(image, t_ns, self.camera_id, seq, exposure_s=float(exposure))
+
+    def _exposure_start_pose(self, render_ns: int, position: XYZ, attitude: Quat,
+                             exposure_s: float) -> tuple[XYZ, Quat] | None:
+        """The vehicle pose half an exposure before ``render_ns``: from the true velocity and
+        angular velocity when the pose source offers them (``motion_at``), else the pose
+        source's own pose then (None: no blur)."""
+        motion_at = getattr(self.pose_source, "motion_at", None)
+        motion = motion_at(render_ns) if callable(motion_at) else None
+        if motion is None:
+            return self.pose_source(render_ns - int(round(exposure_s * 0.5e9)))
+        return pose_moved_back(position, attitude, motion[0], motion[1], 0.5 * exposure_s)
 
     def truth(self, seq: int) -> GroundTruth:
         """Ground truth of this camera's frame ``seq`` (side channel)."""
@@ -168,6 +192,16 @@ class SyntheticCamera:
                     "`world:` section (type: synthetic), or use a real camera (genicam) or "
                     "replay"]
         return []
+
+
+def pose_moved_back(position_ned_m: XYZ, attitude_q: Quat, velocity_ned_mps: XYZ,
+                    angular_velocity_ned_radps: XYZ, dt_s: float) -> tuple[XYZ, Quat]:
+    """The pose ``dt_s`` earlier at constant velocity and angular velocity (NED):
+    ``p - v dt`` and ``exp(-[w]x dt) R``."""
+    p = np.asarray(position_ned_m, np.float64) - np.asarray(velocity_ned_mps, np.float64) * dt_s
+    R = rotation_from_vector(-np.asarray(angular_velocity_ned_radps, np.float64) * dt_s) \
+        @ quat_to_R(attitude_q)
+    return (float(p[0]), float(p[1]), float(p[2])), R_to_quat(R)
 
 
 def shared_world(shared: SharedContext | None, simulation: SyntheticWorldConfig,

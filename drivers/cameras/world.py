@@ -15,8 +15,10 @@ Rendering (docs/cameras.md, "Synthetic world"):
 2. sky: pixels whose ray points at or above the horizon;
 3. boxes, discs and stripes: their visible faces projected and filled (Lambert shading with a
    seed-chosen sun), painted far to near;
-4. lighting gain, lens distortion (if the model has any: the pinhole render is remapped),
-   additive Gaussian noise from a pre-drawn bank.
+4. motion blur (``motion_blur``: along the image motion during the exposure), lighting gain
+   x white balance, lens distortion (if the model has any: the pinhole render is remapped),
+   additive Gaussian noise from a pre-drawn bank, Bayer mosaic + demosaic (``bayer_pattern``),
+   JPEG round trip (``jpeg_quality``): :mod:`.imaging`.
 
 Realism knobs (``SyntheticWorldConfig``) make the rendering camera differ from the nominal
 :class:`CameraModel` the estimators use: ``mount_error_deg`` (a fixed random rotation, per
@@ -24,12 +26,14 @@ camera, of at most that angle), ``focal_error_fraction`` (true focal = nominal x
 ``|e| <=`` the fraction, per camera). ``camera_time_offset_s`` is applied by
 :class:`~eaglemission.drivers.cameras.synthetic.SyntheticCamera`.
 
-Every rendered image is a pure function of (seed, configs, camera model, pose, time): the same
+Every rendered image is a pure function of (seed, configs, camera model, pose, time; with
+``motion_blur``, the exposure's start pose too): the same
 inputs give the same bytes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import zlib
@@ -39,6 +43,13 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from eaglemission.drivers.cameras.imaging import (
+    apply_colour_gains,
+    bayer_round_trip,
+    jpeg_round_trip,
+    motion_blur,
+    optical_axis_motion_px,
+)
 from eaglemission.drivers.cameras.textures import GroundTextures, ground_textures
 from eaglemission.drivers.cameras.world_geometry import (
     EPOCH_NS,
@@ -104,6 +115,8 @@ class GroundTruth:
         (``timestamp_ns - camera_time_offset_s``)
     camera_position_ned_m, R_ned_optical : the TRUE camera pose at ``render_time_ns``
     true_model : the TRUE camera (intrinsics with focal error, mount with mount error)
+    motion_blur_px : (du, dv) in pixels, the image motion during the exposure the frame is
+        smeared along (0, 0 without ``motion_blur``)
     """
 
     target_visible: bool
@@ -118,6 +131,8 @@ class GroundTruth:
     camera_position_ned_m: XYZ = (0.0, 0.0, 0.0)
     R_ned_optical: NDArray[np.float64] = field(default_factory=lambda: np.eye(3))
     true_model: CameraModel | None = None
+    motion_blur_px: tuple[float, float] = (0.0, 0.0)
+    """(du, dv) image motion the frame is smeared along (``motion_blur``; 0 without)"""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -297,29 +312,41 @@ class SyntheticWorld:
 
     # -- rendering ---------------------------------------------------------------------------
     def render(self, model: CameraModel, position_ned_m: Sequence[float],
-               attitude_q: Sequence[float], timestamp_ns: int
+               attitude_q: Sequence[float], timestamp_ns: int, *,
+               exposure_start_pose: tuple[Sequence[float], Sequence[float]] | None = None
                ) -> tuple[NDArray[np.uint8], GroundTruth]:
         """Render what ``model`` sees from a vehicle at ``position_ned_m`` with attitude
         ``attitude_q`` (body FRD -> NED), with the world as it is at ``timestamp_ns``.
+
+        ``exposure_start_pose``: the vehicle's (position, attitude) half an exposure earlier
+        (the start of the exposure); with the world's ``motion_blur`` the image is smeared
+        along twice the image motion between the two poses of the scene point on the
+        principal-point pixel, centred on the mid-exposure image (constant velocity and
+        angular rate over the exposure; :mod:`.imaging`).
 
         Returns the BGR image (H, W, 3) uint8 and its :class:`GroundTruth` (``timestamp_ns``
         and ``render_time_ns`` both set to ``timestamp_ns``).
         """
         ctx = self._camera_ctx(model)
-        R_nb = quat_to_R(attitude_q)
-        p = np.asarray(position_ned_m, dtype=np.float64)
-        if p.shape != (3,) or not np.isfinite(p).all():
-            raise ValueError(f"position_ned_m: must be 3 finite numbers, got {position_ned_m!r}")
-        C = p + R_nb @ np.asarray(model.mount.lever_arm_m, dtype=np.float64)
-        R_no = R_nb @ ctx.R_body_optical_true  # optical -> NED
-        R_on = R_no.T
+        C, R_on = self._camera_pose(model, ctx, position_ned_m, attitude_q)
+        R_no = R_on.T  # optical -> NED
         W, H = model.width_px, model.height_px
         img = np.empty((H, W, 3), np.uint8)
         self._render_ground(img, ctx.K_true, R_on, C)
         self._render_sky(img, ctx.K_true, R_no)
         self._render_objects(img, ctx.K_true, R_on, C, int(timestamp_ns))
-        gain = self.simulation.light_gain
-        if gain != 1.0:
+        sim = self.simulation
+        blur = (0.0, 0.0)
+        if sim.motion_blur and exposure_start_pose is not None:
+            C0, R_on0 = self._camera_pose(model, ctx, *exposure_start_pose)
+            du, dv = optical_axis_motion_px(ctx.K_true, R_on, C, R_on0, C0)
+            blur = (2.0 * du, 2.0 * dv)  # half an exposure -> the whole exposure
+            img = motion_blur(img, *blur)
+        gain = sim.light_gain
+        wb = sim.white_balance_gains_bgr
+        if wb != (1.0, 1.0, 1.0):
+            apply_colour_gains(img, [gain * g for g in wb])
+        elif gain != 1.0:
             cv2.convertScaleAbs(img, dst=img, alpha=gain)
         if ctx.undistort_maps is not None:
             img = np.asarray(cv2.remap(img, ctx.undistort_maps[0], ctx.undistort_maps[1],
@@ -330,8 +357,25 @@ class SyntheticWorld:
             oy, ox = (h % ctx.noise_pad), ((h // ctx.noise_pad) % ctx.noise_pad)
             cv2.add(img, ctx.noise_pos[oy:oy + H, ox:ox + W], dst=img)
             cv2.subtract(img, ctx.noise_neg[oy:oy + H, ox:ox + W], dst=img)
+        if sim.bayer_pattern is not None:
+            img = bayer_round_trip(img, sim.bayer_pattern)
+        if sim.jpeg_quality is not None:
+            img = jpeg_round_trip(img, sim.jpeg_quality)
         truth = self._ground_truth(ctx, R_on, C, int(timestamp_ns))
-        return img, truth
+        return img, dataclasses.replace(truth, motion_blur_px=blur) if blur != (0.0, 0.0) \
+            else truth
+
+    def _camera_pose(self, model: CameraModel, ctx: _CameraCtx, position_ned_m: Sequence[float],
+                     attitude_q: Sequence[float]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The true optical centre (NED) and NED -> optical rotation of ``model`` on a vehicle
+        at ``position_ned_m`` with ``attitude_q``."""
+        R_nb = quat_to_R(attitude_q)
+        p = np.asarray(position_ned_m, dtype=np.float64)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise ValueError(f"position_ned_m: must be 3 finite numbers, got {position_ned_m!r}")
+        C = p + R_nb @ np.asarray(model.mount.lever_arm_m, dtype=np.float64)
+        return C, (R_nb @ ctx.R_body_optical_true).T
 
     # ground and sky (:mod:`.world_ground`) ---------------------------------------------------
     def _render_ground(self, img: NDArray[np.uint8], K: NDArray[np.float64],

@@ -9,6 +9,7 @@ never sees it. ``campaign`` draws random variants of it through :meth:`randomise
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Sequence
 from typing import Annotated, Any, Literal
 
@@ -18,6 +19,8 @@ from pydantic import Field, model_validator
 from eaglemission.config import Finite, NonNegFloat, PosFloat, StrictModel
 
 TEXTURES = ("vegetation", "soil", "snow", "grass")
+
+WhiteBalanceGain = Annotated[float, Field(ge=0.25, le=4.0)]
 
 
 class DistractorConfig(StrictModel):
@@ -76,6 +79,18 @@ class SyntheticWorldConfig(StrictModel):
     focal_error_fraction: Annotated[float, Field(ge=0, le=0.2)] = 0.0
     camera_time_offset_s: Annotated[float, Field(ge=0, le=0.2)] = 0.0
     frame_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
+    # imaging effects (docs/cameras.md, "Imaging effects"); all off by default
+    white_balance_gains_bgr: tuple[WhiteBalanceGain, WhiteBalanceGain, WhiteBalanceGain] = Field(
+        default=(1.0, 1.0, 1.0), description="per-channel gain error on every frame (B, G, R): "
+        "an auto-white-balance error or another illuminant colour")
+    motion_blur: bool = Field(default=False, description="smear each frame along the image "
+                              "motion of the optical-axis ground point during the exposure")
+    bayer_pattern: Literal["BayerRG", "BayerBG", "BayerGR", "BayerGB"] | None = Field(
+        default=None, description="mosaic each frame to this colour filter (the daA1280-54uc: "
+        "BayerRG) and demosaic it as the genicam driver does")
+    jpeg_quality: Annotated[int, Field(ge=1, le=100)] | None = Field(
+        default=None, description="JPEG-encode and decode each frame at this quality, as a "
+        "recorded or streamed frame")
 
 
 class SyntheticWorld:
@@ -85,6 +100,8 @@ class SyntheticWorld:
 
     Config = SyntheticWorldConfig
     description = "procedural ground with the target box, distractors and wind (simulation)"
+    imaging_keys = ("white_balance_gains_bgr", "motion_blur", "bayer_pattern", "jpeg_quality")
+    """The keys :func:`imaging_draws` varies (``campaign --no-imaging-effects`` keeps them)."""
 
     def __init__(self, config: SyntheticWorldConfig, **_context: Any) -> None:
         self.config = config
@@ -105,7 +122,8 @@ class SyntheticWorld:
         """A random variant of this world (pure given the RNG state): target along the route
         (35-75% of its length, +-3 m across), heading, texture, 0-2 distractors, lighting,
         wind (0-3 m/s, any direction), mount error 2 deg, focal error 3%, camera-to-telemetry
-        offset 0-40 ms and the world seed."""
+        offset 0-40 ms and the world seed; then the imaging effects of :func:`imaging_draws`
+        (from an RNG of the drawn world seed, so the draws before stay as they were)."""
         route = np.array(route_ne_m, dtype=float).reshape(-1, 2)
         seg_len = np.linalg.norm(np.diff(route, axis=0), axis=1) if len(route) > 1 \
             else np.ones(1)
@@ -148,7 +166,34 @@ class SyntheticWorld:
             "focal_error_fraction": 0.03,
             "camera_time_offset_s": float(rng.uniform(0.0, 0.040)),
         })
+        # The imaging effects come from an RNG of the drawn world seed, not from ``rng``: the
+        # draws above stay those of every campaign flown before the effects existed.
+        varied = varied.model_copy(update=imaging_draws(varied.seed))
         return varied.model_dump()
+
+
+WB_TEMPERATURE_LOG_GAIN = 0.15
+"""Campaign white balance: R x e^t, B x e^-t with t uniform in +-this (an auto-white-balance
+error or an illuminant of another colour temperature: R/B up to x1.35 either way)."""
+WB_TINT_LOG_GAIN = 0.04
+"""Campaign white balance: G x e^g with g uniform in +-this (green-magenta tint)."""
+JPEG_FRACTION = 0.5
+"""Campaign: the share of runs whose frames go through JPEG (quality 60-95)."""
+
+
+def imaging_draws(world_seed: int) -> dict[str, Any]:
+    """The campaign's imaging effects of a world: motion blur and the daA1280-54uc's BayerRG
+    demosaicing always (they are physical), a white-balance error, and JPEG at quality 60-95 in
+    half of the runs; drawn from an RNG of ``world_seed`` alone (pure)."""
+    g = np.random.RandomState(zlib.crc32(f"imaging/{int(world_seed)}".encode()))
+    t = g.uniform(-WB_TEMPERATURE_LOG_GAIN, WB_TEMPERATURE_LOG_GAIN)
+    tint = g.uniform(-WB_TINT_LOG_GAIN, WB_TINT_LOG_GAIN)
+    jpeg = g.uniform() < JPEG_FRACTION
+    quality = int(g.randint(60, 96))
+    return {"white_balance_gains_bgr": (float(math.exp(-t)), float(math.exp(tint)),
+                                        float(math.exp(t))),
+            "motion_blur": True, "bayer_pattern": "BayerRG",
+            "jpeg_quality": quality if jpeg else None}
 
 
 def world_config(mission: Any) -> SyntheticWorldConfig | None:
