@@ -37,6 +37,7 @@ from eaglemission.drivers.vehicles.autopilot_monitors import (
     GpsMonitor,
     LandDetector,
 )
+from eaglemission.drivers.vehicles.autopilot_orbit import Orbit, orbit_command
 from eaglemission.drivers.vehicles.autopilot_params import (
     MANUAL_ACTION_MODES,
     MANUAL_MODES,
@@ -48,11 +49,12 @@ from eaglemission.drivers.vehicles.autopilot_params import (
     rtl_altitude_m,
 )
 from eaglemission.drivers.vehicles.dynamics import MulticopterDynamics
+from eaglemission.drivers.vehicles.dynamics_direct import DirectSetpoint
 
 from eaglemission.types import XYZ, FlightMode, Setpoint
 
-__all__ = ["Autopilot", "AutopilotListener", "AutopilotParams", "FailsafeAction", "LandedState",
-           "MissionItem", "ModeSource"]
+__all__ = ["Autopilot", "AutopilotListener", "AutopilotParams", "DirectSetpoint", "FailsafeAction",
+           "LandedState", "MissionItem", "ModeSource", "Orbit"]
 
 
 class Autopilot:
@@ -77,7 +79,10 @@ class Autopilot:
         self.mission = MissionExecutor(self)
         self.setpoint: Setpoint | None = None  # latest offboard position setpoint...
         self.setpoint_velocity: tuple[XYZ, float | None] | None = None  # ...or velocity + yaw
+        self.setpoint_yaw_rate: float | None = None  # ... turning at this rate (no yaw given)
+        self.setpoint_direct: DirectSetpoint | None = None  # ...or acceleration / attitude
         self.setpoint_ns = 0
+        self.orbit: Orbit | None = None  # an orbit under way (PX4: Position mode, ORBIT)
         self.offboard_signal_grace: Callable[[], bool] | None = None  # emulator: wall-time guard
         self.offboard_failover = False  # in an offboard-loss failsafe the signal's return clears
         self._taking_off = False  # a climb from the ground (MAV_LANDED_STATE_TAKEOFF)
@@ -138,7 +143,7 @@ class Autopilot:
 
     def offboard_signal(self) -> bool:
         """PX4's offboard signal: a setpoint within COM_OF_LOSS_T."""
-        if self.setpoint is None and self.setpoint_velocity is None:
+        if self.setpoint is None and self.setpoint_velocity is None and self.setpoint_direct is None:
             return False
         if self.dyn.time_ns - self.setpoint_ns <= self.params.offboard_loss_timeout_s * 1e9:
             return True
@@ -156,6 +161,8 @@ class Autopilot:
         self.dyn.set_motors(True)
         self.status("Armed by external command")
         self.listener.on_armed(True)
+        if self.mode == FlightMode.TAKEOFF:  # takeoff selected while disarmed: it flies now
+            self.takeoff(self._takeoff_alt_m)
 
     def start_airborne(self) -> None:
         """Armed and hovering (a simulation starting in the air)."""
@@ -170,6 +177,7 @@ class Autopilot:
         self.armed = False
         self.land_detector.in_air = False
         self._taking_off = False
+        self.orbit = None
         self.dyn.set_motors(False)
         self.offboard_active = False
         self.status(text)
@@ -244,6 +252,7 @@ class Autopilot:
         """An offboard position setpoint arrived (flown only in OFFBOARD)."""
         self.setpoint = setpoint
         self.setpoint_velocity = None
+        self.setpoint_direct = None
         self.setpoint_ns = self.dyn.time_ns
 
     def set_setpoint(self, setpoint: Setpoint) -> None:
@@ -251,12 +260,30 @@ class Autopilot:
         if self.mode == FlightMode.OFFBOARD:
             self._command_offboard()
 
-    def set_velocity_setpoint(self, velocity_ned_mps: XYZ, yaw_deg: float | None) -> None:
+    def set_velocity_setpoint(self, velocity_ned_mps: XYZ, yaw_deg: float | None,
+                              yaw_rate_degps: float | None = None) -> None:
         self.setpoint = None
+        self.setpoint_direct = None
         self.setpoint_velocity = (velocity_ned_mps, yaw_deg)
+        self.setpoint_yaw_rate = yaw_rate_degps if yaw_deg is None else None
         self.setpoint_ns = self.dyn.time_ns
         if self.mode == FlightMode.OFFBOARD:
             self._command_offboard()
+
+    def set_direct_setpoint(self, setpoint: DirectSetpoint) -> None:
+        """An offboard acceleration, attitude or body-rate setpoint (flown only in OFFBOARD)."""
+        self.setpoint = None
+        self.setpoint_velocity = None
+        self.setpoint_direct = setpoint
+        self.setpoint_ns = self.dyn.time_ns
+        if self.mode == FlightMode.OFFBOARD:
+            self._command_offboard()
+
+    def start_orbit(self, orbit: Orbit) -> None:
+        """DO_ORBIT: Position mode flying ``orbit`` (PX4's ORBIT sub mode of Position)."""
+        self._by_command()
+        self.set_mode(FlightMode.POSCTL, "command")
+        self.orbit = orbit
 
     def start_offboard(self, initial: Setpoint) -> None:
         """The client's offboard session starts with its first setpoint."""
@@ -346,6 +373,10 @@ class Autopilot:
         old = self.mode
         self._failsafe_hold_until_ns = None
         self._taking_off = False
+        if self.orbit is not None:
+            self.orbit = None  # any mode change ends an orbit (the change to Position starts it)
+            if mode == old:
+                self.listener.on_mode(old, mode, source)  # Position's sub mode changed
         if not self.failsafe_active:
             self.intended_mode = mode
         if mode == old:
@@ -372,11 +403,14 @@ class Autopilot:
 
     def _command_offboard(self) -> None:
         """PX4 flies an offboard position setpoint at its own maximum speed."""
+        dyn = self.dyn
         if self.setpoint is not None:
-            self.dyn.command_position(self.setpoint, max_speed_mps=self.params.offboard_max_speed_mps)
+            dyn.command_position(self.setpoint, max_speed_mps=self.params.offboard_max_speed_mps)
         elif self.setpoint_velocity is not None:
             v, yaw = self.setpoint_velocity
-            self.dyn.command_velocity(v, yaw)
+            dyn.command_velocity(v, yaw, yaw_rate_degps=self.setpoint_yaw_rate)
+        elif self.setpoint_direct is not None:
+            dyn.command_direct(self.setpoint_direct)
 
     # ------------------------------------------------------------------------------------------
     # the model, after every internal step of the dynamics
@@ -393,11 +427,11 @@ class Autopilot:
         if self.armed:
             mode = self.mode
             if mode == FlightMode.TAKEOFF:
-                self._step_takeoff(t)
+                step_takeoff(self, t)
             elif mode == FlightMode.MISSION:
                 self.mission.step()
             elif mode == FlightMode.RETURN_TO_LAUNCH:
-                self._step_rtl()
+                step_rtl(self)
             elif mode == FlightMode.OFFBOARD:
                 if not self.offboard_signal():
                     p = self.params
@@ -406,6 +440,9 @@ class Autopilot:
                     if (p.offboard_loss_action == FailsafeAction.HOLD
                             and p.offboard_loss_land_after_s is not None):
                         self._failsafe_hold_until_ns = t + int(round(p.offboard_loss_land_after_s * 1e9))
+            elif mode == FlightMode.POSCTL and self.orbit is not None:
+                v, yaw = orbit_command(self.orbit, dyn.estimated_position(), t)
+                dyn.command_velocity(v, yaw, immediate=True)
             elif mode == FlightMode.HOLD and self._failsafe_hold_until_ns is not None:
                 if t >= self._failsafe_hold_until_ns and self.in_air:
                     self._failsafe_hold_until_ns = None
@@ -421,41 +458,45 @@ class Autopilot:
         return (self.mode == FlightMode.OFFBOARD and self.setpoint is not None
                 and self.setpoint.down_m < -0.3)
 
-    def _step_takeoff(self, t: int) -> None:
-        if t < self._takeoff_go_ns:
-            return  # motors spooling up
-        dyn, p = self.dyn, self.params
-        n, e = self._takeoff_origin
-        ramp_s = p.takeoff_ramp_s
-        elapsed_s = (t - self._takeoff_go_ns) * 1e-9
-        if not self._takeoff_climbing or elapsed_s <= ramp_s:
-            # PX4 ramps the climb-rate limit up to MPC_TKO_SPEED over MPC_TKO_RAMP_T
-            self._takeoff_climbing = True
-            self.climbing_from_ground()
-            k = 1.0 if ramp_s <= 0 else max(0.05, min(1.0, elapsed_s / ramp_s))
-            dyn.command_position(Setpoint(n, e, -self._takeoff_alt_m, dyn.yaw_deg),
-                                 max_up_speed_mps=k * p.takeoff_speed_mps, immediate=True)
-            return
-        off = -dyn.estimated_position()[2] - self._takeoff_alt_m
-        if -p.takeoff_accept_below_m <= off <= p.takeoff_accept_above_m:
-            self.set_mode(FlightMode.HOLD, "autopilot")  # PX4: TAKEOFF -> AUTO.LOITER
 
-    def _step_rtl(self) -> None:
-        dyn = self.dyn
-        e = dyn.estimated_position()
-        if self.rtl_phase == "climb":
-            if -e[2] >= self._rtl_alt_m - 0.5:
-                self.rtl_phase = "return"
-                yaw = math.degrees(math.atan2(-e[1], -e[0])) if math.hypot(e[0], e[1]) > 1.0 else dyn.yaw_deg
-                dyn.command_position(Setpoint(0.0, 0.0, -self._rtl_alt_m, yaw), immediate=True,
-                                     **self.params.auto_vertical_speeds(rtl_return=True))
-        elif self.rtl_phase == "return":
-            if (math.hypot(e[0], e[1]) <= self.params.rtl_land_radius_m
-                    and math.hypot(dyn.vn, dyn.ve) < self.params.rtl_land_max_speed_mps):
-                self.rtl_phase = "land"
-                self.status("RTL: land at destination")
-                dyn.command_land(at_ne_m=(0.0, 0.0), immediate=True)  # at home (PX4: its
-                # land waypoint; recorded f1 / f2: touchdown 0.31 / 0.37 m from it)
+def step_takeoff(ap: Autopilot, t: int) -> None:
+    """TAKEOFF: spool-up, the climb (its rate ramped up), then HOLD at the altitude."""
+    if t < ap._takeoff_go_ns:
+        return  # motors spooling up
+    dyn, p = ap.dyn, ap.params
+    n, e = ap._takeoff_origin
+    ramp_s = p.takeoff_ramp_s
+    elapsed_s = (t - ap._takeoff_go_ns) * 1e-9
+    if not ap._takeoff_climbing or elapsed_s <= ramp_s:
+        # PX4 ramps the climb-rate limit up to MPC_TKO_SPEED over MPC_TKO_RAMP_T
+        ap._takeoff_climbing = True
+        ap.climbing_from_ground()
+        k = 1.0 if ramp_s <= 0 else max(0.05, min(1.0, elapsed_s / ramp_s))
+        dyn.command_position(Setpoint(n, e, -ap._takeoff_alt_m, dyn.yaw_deg),
+                             max_up_speed_mps=k * p.takeoff_speed_mps, immediate=True)
+        return
+    off = -dyn.estimated_position()[2] - ap._takeoff_alt_m
+    if -p.takeoff_accept_below_m <= off <= p.takeoff_accept_above_m:
+        ap.set_mode(FlightMode.HOLD, "autopilot")  # PX4: TAKEOFF -> AUTO.LOITER
+
+
+def step_rtl(ap: Autopilot) -> None:
+    """RTL's phases: climb in place, return at cruise speed, land at home."""
+    dyn = ap.dyn
+    e = dyn.estimated_position()
+    if ap.rtl_phase == "climb":
+        if -e[2] >= ap._rtl_alt_m - 0.5:
+            ap.rtl_phase = "return"
+            yaw = math.degrees(math.atan2(-e[1], -e[0])) if math.hypot(e[0], e[1]) > 1.0 else dyn.yaw_deg
+            dyn.command_position(Setpoint(0.0, 0.0, -ap._rtl_alt_m, yaw), immediate=True,
+                                 **ap.params.auto_vertical_speeds(rtl_return=True))
+    elif ap.rtl_phase == "return":
+        if (math.hypot(e[0], e[1]) <= ap.params.rtl_land_radius_m
+                and math.hypot(dyn.vn, dyn.ve) < ap.params.rtl_land_max_speed_mps):
+            ap.rtl_phase = "land"
+            ap.status("RTL: land at destination")
+            dyn.command_land(at_ne_m=(0.0, 0.0), immediate=True)  # at home (PX4: its
+            # land waypoint; recorded f1 / f2: touchdown 0.31 / 0.37 m from it)
 
 
 def apply_failsafe(ap: Autopilot, reason: str, action: FailsafeAction) -> None:

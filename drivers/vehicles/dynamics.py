@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import numpy as np
+from eaglemission.drivers.vehicles.dynamics_direct import DirectSetpoint, DirectThrust
 from eaglemission.drivers.vehicles.kinematics import (
     GRAVITY_MPS2,
     attitude_from_acceleration,
@@ -147,12 +148,12 @@ class KinematicState:
         return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
-ControlMode = Literal["idle", "position", "velocity", "land"]
+ControlMode = Literal["idle", "position", "velocity", "land", "acceleration", "attitude"]
 
 
 @dataclass(frozen=True, slots=True)
 class _Command:
-    kind: Literal["position", "velocity", "hold", "land"]
+    kind: Literal["position", "velocity", "hold", "land", "acceleration", "attitude"]
     target: XYZ = (0.0, 0.0, 0.0)
     yaw_deg: float | None = None
     max_speed_mps: float | None = None
@@ -160,6 +161,8 @@ class _Command:
     max_down_speed_mps: float | None = None
     gain_per_s: float | None = None
     at_ne: tuple[float, float] | None = None  # land: where (None: the stopping point)
+    yaw_rate_degps: float | None = None  # velocity / acceleration / attitude: turn at this rate
+    rates_degps: tuple[float, float] | None = None  # attitude: roll / pitch rates (body rates)
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,6 +256,8 @@ class MulticopterDynamics:
         self.mode: ControlMode = "idle"
         self._sp = (0.0, 0.0, 0.0)
         self._vel_cmd = (0.0, 0.0, 0.0)
+        self._direct = DirectThrust()  # acceleration / attitude modes
+        self._yaw_rate_cmd: float | None = None  # turn at this rate instead of to _yaw_sp
         self._yaw_sp = 0.0
         self._max_speed = p.cruise_speed_mps
         self._max_up = p.max_up_speed_mps
@@ -338,10 +343,21 @@ class MulticopterDynamics:
                              max_up_speed_mps, max_down_speed_mps, gain_per_s), immediate)
 
     def command_velocity(self, velocity_ned_mps: XYZ, yaw_deg: float | None = None, *,
-                         immediate: bool = False) -> None:
-        """Track a NED velocity (limited by the params) and, if given, a yaw."""
+                         yaw_rate_degps: float | None = None, immediate: bool = False) -> None:
+        """Track a NED velocity (limited by the params) and, if given, a yaw (or turn at
+        ``yaw_rate_degps`` when no yaw is given)."""
         v = velocity_ned_mps
-        self._issue(_Command("velocity", (float(v[0]), float(v[1]), float(v[2])), yaw_deg), immediate)
+        self._issue(_Command("velocity", (float(v[0]), float(v[1]), float(v[2])), yaw_deg,
+                             yaw_rate_degps=yaw_rate_degps), immediate)
+
+    def command_direct(self, sp: DirectSetpoint, *, immediate: bool = False) -> None:
+        """Fly an offboard acceleration, attitude or body-rate setpoint without the position
+        and velocity loops."""
+        v = (float(sp.values[0]), float(sp.values[1]), float(sp.values[2]))
+        rates = (v[0], v[1]) if sp.kind == "rates" else None
+        self._issue(_Command("acceleration" if sp.kind == "acceleration" else "attitude", v,
+                             sp.yaw_deg, yaw_rate_degps=sp.yaw_rate_degps, rates_degps=rates),
+                    immediate)
 
     def command_hold(self, *, immediate: bool = False) -> None:
         """Brake and hold the stopping point (PX4 Hold/Loiter)."""
@@ -373,6 +389,14 @@ class MulticopterDynamics:
     def _apply(self, cmd: _Command) -> None:
         p = self.params
         if not self.motors_on:
+            return
+        self._yaw_rate_cmd = cmd.yaw_rate_degps if cmd.yaw_deg is None else None
+        if cmd.kind == "acceleration" or cmd.kind == "attitude":
+            self._direct.set(cmd.kind, cmd.target, cmd.rates_degps, self.mode,
+                             (self.an, self.ae, self.ad), self.yaw_deg)
+            self.mode = cmd.kind
+            if cmd.yaw_deg is not None:
+                self._yaw_sp = wrap_deg(cmd.yaw_deg)
             return
         if cmd.kind == "position":
             self.mode = "position"
@@ -453,6 +477,10 @@ class MulticopterDynamics:
         # -- position loop -> desired velocity (estimate frame) --------------------------------
         err = em.error_ned_m
         mode = self.mode
+        if mode == "acceleration" or mode == "attitude":
+            cn, ce, cd = self._direct.command(mode, self.yaw_deg, dt)
+            self._thrust(c, cn, ce, cd, wn, we)
+            return
         if mode == "velocity":
             vn_d, ve_d, vd_d = self._vel_cmd
             h = math.hypot(vn_d, ve_d)
@@ -486,6 +514,12 @@ class MulticopterDynamics:
         cn = (vn_d - vn) * inv_tau + drag * vn - self._dn
         ce = (ve_d - ve) * inv_tau + drag * ve - self._de
         cd = (vd_d - vd) * inv_tau + drag * vd
+        self._thrust(c, cn, ce, cd, wn, we)
+
+    def _thrust(self, c: _Constants, cn: float, ce: float, cd: float, wn: float, we: float) -> None:
+        """The commanded thrust acceleration, limited, through the attitude lag; yaw; physics."""
+        dt, drag = c.dt, c.drag
+        vn, ve, vd = self.vn, self.ve, self.vd
         h = math.hypot(cn, ce)
         a_h_max = self._a_h_max
         if h > a_h_max:
@@ -504,11 +538,13 @@ class MulticopterDynamics:
         if on_ground:
             rate = 0.0
         else:
-            yerr = (self._yaw_sp - self.yaw_deg + 180.0) % 360.0 - 180.0
-            rate = c.k_yaw * yerr
+            yr = self._yaw_rate_cmd  # a commanded yaw rate, else towards the yaw setpoint
+            rate = c.k_yaw * ((self._yaw_sp - self.yaw_deg + 180.0) % 360.0 - 180.0) if yr is None else yr
             rate = -c.yaw_rate_max if rate < -c.yaw_rate_max else (
                 c.yaw_rate_max if rate > c.yaw_rate_max else rate)
             self.yaw_deg = (self.yaw_deg + rate * dt + 180.0) % 360.0 - 180.0
+            if self._yaw_rate_cmd is not None:
+                self._yaw_sp = self.yaw_deg
         self.yaw_rate_degps = rate
 
         # -- physics ---------------------------------------------------------------------------

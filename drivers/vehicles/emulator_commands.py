@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import time
+import zlib
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
+from eaglemission.drivers.vehicles import autopilot_orbit as orbit_lib
 from eaglemission.drivers.vehicles import px4
 from eaglemission.drivers.vehicles.autopilot_params import MANUAL_MODES, LandedState
 from eaglemission.drivers.vehicles.emulator_config import (
@@ -17,7 +20,11 @@ from eaglemission.drivers.vehicles.emulator_config import (
     MSG_NAMES,
     PX4_ONBOARD_RATES_HZ,
 )
-from eaglemission.drivers.vehicles.emulator_manual import MANUAL_MODE_NAMES, ManualControlInput
+from eaglemission.drivers.vehicles.emulator_manual import (
+    MANUAL_MODE_NAMES,
+    ManualControlInput,
+    StickLimits,
+)
 from eaglemission.drivers.vehicles.mavlink_dialect import M, as_int
 
 from eaglemission.geometry import geodetic_to_ned
@@ -30,6 +37,20 @@ log = logging.getLogger(__name__)
 
 Handler = Callable[["CommandHandlers", Any, list[float], "int | None"], int]
 CRITICAL = M.MAV_SEVERITY_CRITICAL
+INT32_MAX = 2**31 - 1
+PARAM_ECHO_DELAY_S = 0.011
+"""PX4's second PARAM_VALUE after a PARAM_SET (recorded a: 11 ms after the first)."""
+MAV_RESULT_CANCELLED = 6  # MAVLink's value (not in pymavlink 2.4.50's development dialect)
+
+
+def _global_of(p: list[float], frame: int | None) -> tuple[float, float, float]:
+    """Latitude, longitude (degrees) and altitude of a command's params 5-7: COMMAND_LONG
+    carries degrees, COMMAND_INT 1e7 integers (INT32_MAX, as PX4 reads it: not given)."""
+    if frame is None:
+        return p[4], p[5], p[6]
+    lat = math.nan if p[4] == INT32_MAX else p[4] / 1e7
+    lon = math.nan if p[5] == INT32_MAX else p[5] / 1e7
+    return lat, lon, p[6]
 
 
 class CommandHandlers:
@@ -39,6 +60,9 @@ class CommandHandlers:
         self._e = emulator
         self.deny: dict[int, int] = {}  # command id -> MAV_RESULT for the next one
         self.manual = ManualControlInput()
+        self.grip: tuple[Literal["grab", "release"], float, tuple[int, int]] | None = None
+        """The gripper action under way: action, when it completes (emulator s), its sender."""
+        self._param_echo: list[tuple[float, str]] = []  # PARAM_VALUE due again (wall s, name)
         self._first_set_mode_ack: int | None = None  # PX4's first of its two DO_SET_MODE acks
 
     def on_command_long(self, msg: Any) -> None:
@@ -50,8 +74,10 @@ class CommandHandlers:
                                          msg.x, msg.y, msg.z], frame=msg.frame)
 
     def _ack(self, msg: Any, command: int, result: int) -> None:
-        self._e.emit(M.MAVLink_command_ack_message(command, result, 0, 0, msg.get_srcSystem(),
-                                                   msg.get_srcComponent()))
+        # PX4 fills the progress of an IN_PROGRESS ack with 255 (unknown; probed, DO_GRIPPER)
+        progress = 255 if result == M.MAV_RESULT_IN_PROGRESS else 0
+        self._e.emit(M.MAVLink_command_ack_message(command, result, progress, 0,
+                                                   msg.get_srcSystem(), msg.get_srcComponent()))
 
     def _command(self, msg: Any, cmd: int, p: list[float], frame: int | None) -> None:
         denied = self.deny.pop(cmd, None)
@@ -83,6 +109,11 @@ class CommandHandlers:
         if p[0] >= 0.5:
             if ap.armed:
                 return int(M.MAV_RESULT_ACCEPTED)
+            if not force and ap.orbit is not None:
+                # probed: DO_ORBIT accepted on the ground puts PX4 in Position's ORBIT, in which
+                # it cannot be armed
+                e.statustext("Arming denied: Resolve system health failures first", CRITICAL)
+                return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
             if not force and not e.armable():
                 e.statustext("Arming denied: preflight checks failed", CRITICAL)
                 return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
@@ -97,32 +128,38 @@ class CommandHandlers:
         return int(M.MAV_RESULT_ACCEPTED)
 
     def takeoff(self, msg: Any, p: list[float], frame: int | None) -> int:
+        """NAV_TAKEOFF. Disarmed, PX4 v1.16 ACCEPTs it and only selects Takeoff, without a
+        status text (probed; the emulator denied it before issue 13): arming then takes off."""
         e, ap = self._e, self._e.autopilot
-        if not ap.armed:
-            e.statustext("Takeoff denied! Please arm first", CRITICAL)
-            return int(M.MAV_RESULT_DENIED)
         if not ap.gps_ok:
             return int(M.MAV_RESULT_DENIED)
         if math.isfinite(p[6]):
             alt = p[6] - e.home.altitude_amsl_m  # NAV_TAKEOFF param7 is AMSL
         else:
             alt = e.param("MIS_TAKEOFF_ALT")
-            e.statustext(f"Using default takeoff altitude: {alt:.1f} m")
+            if ap.armed:
+                e.statustext(f"Using default takeoff altitude: {alt:.1f} m")
         ap.takeoff(max(alt, 0.5))
         return int(M.MAV_RESULT_ACCEPTED)
 
     def land(self, msg: Any, p: list[float], frame: int | None) -> int:
-        if not self._e.autopilot.armed:
-            return int(M.MAV_RESULT_DENIED)
+        """NAV_LAND: ACCEPTED and Land, "Landing at current position", disarmed too (probed)."""
         self._e.autopilot.land()
         self._e.statustext("Landing at current position")
         return int(M.MAV_RESULT_ACCEPTED)
 
     def rtl(self, msg: Any, p: list[float], frame: int | None) -> int:
-        if not self._e.autopilot.armed:
-            return int(M.MAV_RESULT_DENIED)
-        self._e.autopilot.return_to_launch()
+        """NAV_RETURN_TO_LAUNCH: Return; disarmed it is only selected (probed with DO_SET_MODE,
+        which MAVSDK's return_to_launch sends: ACCEPTED, no status text)."""
+        self._rtl()
         return int(M.MAV_RESULT_ACCEPTED)
+
+    def _rtl(self) -> None:
+        ap = self._e.autopilot
+        if ap.armed:
+            ap.return_to_launch()
+        else:
+            ap.set_mode(FlightMode.RETURN_TO_LAUNCH, "command")
 
     def set_mode(self, msg: Any, p: list[float], frame: int | None) -> int:
         e, ap = self._e, self._e.autopilot
@@ -138,8 +175,6 @@ class CommandHandlers:
         if mode == FlightMode.MISSION and not ap.mission.items:
             e.statustext("Switching to Mission is currently not available", CRITICAL)
             return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
-        if mode in (FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RETURN_TO_LAUNCH) and not ap.armed:
-            return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
         if mode in MANUAL_MODES and not self.manual.present(e.sim_time_s):
             # PX4 (COM_RC_IN_MODE 1, recorded h1): no MANUAL_CONTROL, no manual mode; the
             # vehicle stays in its mode (OFFBOARD kept following the setpoints)
@@ -151,10 +186,9 @@ class CommandHandlers:
         elif mode in MANUAL_MODES:
             # the sticks decide (recorded h3: centred MANUAL_CONTROL, Position holds)
             ap.enter_manual(mode, "pilot")
-            self.manual.apply(ap, e.param("MPC_VEL_MANUAL"), e.param("MPC_Z_VEL_MAX_UP"),
-                              e.param("MPC_Z_VEL_MAX_DN"), force=True)
+            self.manual.apply(ap, self.stick_limits(), e.sim_time_s, force=True)
         elif mode == FlightMode.RETURN_TO_LAUNCH:
-            ap.return_to_launch()
+            self._rtl()  # disarmed: selected, ACCEPTED (probed; TEMPORARILY_REJECTED before)
         elif mode == FlightMode.MISSION:
             ap.start_mission()
         elif mode == FlightMode.OFFBOARD:
@@ -168,9 +202,18 @@ class CommandHandlers:
         return int(M.MAV_RESULT_ACCEPTED)
 
     def reposition(self, msg: Any, p: list[float], frame: int | None) -> int:
+        """DO_REPOSITION as PX4 v1.16 answers MAVSDK's ``goto_location`` (probed): param2 must
+        ask for the mode change (MAV_DO_REPOSITION_FLAGS_CHANGE_MODE, else UNSUPPORTED); then
+        ACCEPTED and Hold, disarmed too (nothing flies); armed on the ground it takes off to
+        the target, right after a takeoff command (0.2 s, still on the ground) it climbs and
+        flies there. Before issue 13 the emulator denied it on the ground."""
         e, ap = self._e, self._e.autopilot
-        if not ap.armed or ap.landed_state == LandedState.ON_GROUND:
-            return int(M.MAV_RESULT_DENIED)
+        flags = as_int(p[1])
+        if not flags & M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE or flags & ~M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE:
+            return int(M.MAV_RESULT_UNSUPPORTED)
+        if not ap.armed:
+            ap.hold()
+            return int(M.MAV_RESULT_ACCEPTED)
         if frame is None:  # COMMAND_LONG: degrees in params 5/6
             lat, lon, alt = p[4], p[5], p[6]
             frame = M.MAV_FRAME_GLOBAL
@@ -189,12 +232,74 @@ class CommandHandlers:
         return int(M.MAV_RESULT_ACCEPTED)
 
     def gripper(self, msg: Any, p: list[float], frame: int | None) -> int:
+        """DO_GRIPPER as PX4 v1.16's payload deliverer answers it (probed): a change of state is
+        IN_PROGRESS (progress 255) at once and ACCEPTED PD_GRIPPER_TO (1 s) later; the state it
+        is already in, ACCEPTED at once; the same action while it is under way,
+        TEMPORARILY_REJECTED; the other one, CANCELLED to the first command's sender and
+        IN_PROGRESS. PX4 grabs at boot. No status text. (The emulator answered ACCEPTED at once
+        before issue 13.)"""
+        e = self._e
         action = as_int(p[1], -1)
         if action not in (M.GRIPPER_ACTION_RELEASE, M.GRIPPER_ACTION_GRAB):
             return int(M.MAV_RESULT_DENIED)
-        ap = self._e.autopilot
-        ap.gripper = "grab" if action == M.GRIPPER_ACTION_GRAB else "release"
-        self._e.statustext(f"Gripper {ap.gripper}")
+        want: Literal["grab", "release"] = "grab" if action == M.GRIPPER_ACTION_GRAB else "release"
+        g = self.grip
+        if g is not None:
+            if g[0] == want:
+                return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
+            self._e.emit(M.MAVLink_command_ack_message(M.MAV_CMD_DO_GRIPPER, MAV_RESULT_CANCELLED,
+                                                       0, 0, g[2][0], g[2][1]))
+            self.grip = None
+        elif e.autopilot.gripper == want:
+            return int(M.MAV_RESULT_ACCEPTED)
+        self.grip = (want, e.sim_time_s + e.param("PD_GRIPPER_TO"),
+                     (msg.get_srcSystem(), msg.get_srcComponent()))
+        return int(M.MAV_RESULT_IN_PROGRESS)
+
+    def tick(self) -> None:
+        """Late answers: PARAM_SET's second PARAM_VALUE (wall time), a gripper action's final
+        ACCEPTED (emulator time)."""
+        if self._param_echo and self._param_echo[0][0] <= time.monotonic():
+            now = time.monotonic()
+            due = [n for t, n in self._param_echo if t <= now]
+            self._param_echo = [(t, n) for t, n in self._param_echo if t > now]
+            for name in due:
+                self._e.emit(self.param_value(name))
+        g = self.grip
+        if g is not None and self._e.sim_time_s >= g[1]:
+            self.grip = None
+            self._e.autopilot.gripper = g[0]
+            self._e.emit(M.MAVLink_command_ack_message(M.MAV_CMD_DO_GRIPPER, M.MAV_RESULT_ACCEPTED,
+                                                       0, 0, g[2][0], g[2][1]))
+
+    def orbit(self, msg: Any, p: list[float], frame: int | None) -> int:
+        """DO_ORBIT (MAVSDK's ``Action.do_orbit`` sends it as COMMAND_INT): ACCEPTED, Position
+        mode's ORBIT (probed on PX4 v1.16), disarmed on the ground too (then arming is denied
+        until another mode is selected); see :mod:`.autopilot_orbit`."""
+        e, ap = self._e, self._e.autopilot
+        radius = p[0] if math.isfinite(p[0]) else (ap.orbit.radius_m if ap.orbit else math.nan)
+        if not (orbit_lib.RADIUS_MIN_M <= abs(radius) <= e.param("MC_ORBIT_RAD_MAX")):
+            e.statustext("Orbit radius limit exceeded", CRITICAL)
+            ap.hold()
+            return int(M.MAV_RESULT_ACCEPTED)  # PX4's Commander accepts; its orbit task refuses
+        speed = abs(p[1]) if math.isfinite(p[1]) else 1.0
+        speed = orbit_lib.sanitized_speed(abs(radius), speed if radius > 0 else -speed)
+        here = e.dyn.estimated_position()
+        lat, lon, alt = _global_of(p, frame)
+        if math.isfinite(lat) and math.isfinite(lon):
+            cn, ce, _ = geodetic_to_ned(e.home, GeoPoint(lat, lon, e.home.altitude_amsl_m))
+        else:
+            cn, ce = here[0], here[1]
+        if math.isfinite(alt):
+            rel = frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+            down = -alt if rel else e.home.altitude_amsl_m - alt
+        else:
+            down = here[2]
+        yaw_mode = as_int(p[2], int(e.param("MC_ORBIT_YAW_MOD")))
+        if yaw_mode == 5:  # ORBIT_YAW_BEHAVIOUR_UNCHANGED
+            yaw_mode = ap.orbit.yaw_behaviour if ap.orbit else int(e.param("MC_ORBIT_YAW_MOD"))
+        ap.start_orbit(orbit_lib.Orbit((cn, ce), down, abs(radius), speed, yaw_mode,
+                                       e.dyn.yaw_deg, e.dyn.time_ns))
         return int(M.MAV_RESULT_ACCEPTED)
 
     def interval(self, msg: Any, p: list[float], frame: int | None) -> int:
@@ -229,33 +334,12 @@ class CommandHandlers:
         e = self._e
         self.manual.on_message(msg, e.sim_time_s)
         if e.autopilot.mode in MANUAL_MODES and e.autopilot.manual_input:
-            self.manual.apply(e.autopilot, e.param("MPC_VEL_MANUAL"), e.param("MPC_Z_VEL_MAX_UP"),
-                              e.param("MPC_Z_VEL_MAX_DN"))
+            self.manual.apply(e.autopilot, self.stick_limits(), e.sim_time_s)
 
-    def on_set_position_target_local_ned(self, msg: Any) -> None:
-        """An offboard setpoint (position or velocity, local NED relative to the EKF origin)."""
-        e = self._e
-        if msg.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
-            return
-        hl = e.home_local
-        mask = msg.type_mask
-        yaw = (None if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE or not math.isfinite(msg.yaw)
-               else math.degrees(msg.yaw))
-        ap = e.autopilot
-        if not mask & (M.POSITION_TARGET_TYPEMASK_X_IGNORE | M.POSITION_TARGET_TYPEMASK_Y_IGNORE
-                       | M.POSITION_TARGET_TYPEMASK_Z_IGNORE):
-            if not all(math.isfinite(v) for v in (msg.x, msg.y, msg.z)):
-                return  # PX4 rejects a non-finite position setpoint (it does not feed the signal)
-            ap.set_setpoint(Setpoint(msg.x - hl[0], msg.y - hl[1], msg.z - hl[2],
-                                     e.dyn.yaw_setpoint_deg if yaw is None else yaw))
-        elif not mask & (M.POSITION_TARGET_TYPEMASK_VX_IGNORE | M.POSITION_TARGET_TYPEMASK_VY_IGNORE
-                         | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE):
-            if not all(math.isfinite(v) for v in (msg.vx, msg.vy, msg.vz)):
-                return
-            ap.set_velocity_setpoint((msg.vx, msg.vy, msg.vz), yaw)
-        else:
-            return
-        e.setpoint_wall = time.monotonic()
+    def stick_limits(self) -> StickLimits:
+        p = self._e.param
+        return StickLimits(p("MPC_VEL_MANUAL"), p("MPC_ACC_HOR"), p("MPC_XY_MAN_EXPO"),
+                           p("MPC_Z_VEL_MAX_UP"), p("MPC_Z_VEL_MAX_DN"), p("MPC_Z_MAN_EXPO"))
 
     # ------------------------------------------------------------------------------------------
     # parameters
@@ -264,7 +348,7 @@ class CommandHandlers:
         e = self._e
         value, ptype = e.params[name]
         return M.MAVLink_param_value_message(name.encode(), px4.encode_param(float(value), int(ptype)),
-                                             int(ptype), len(e.params), e.param_names.index(name))
+                                             int(ptype), len(e.params), e.param_index[name])
 
     @staticmethod
     def _param_id(raw: Any) -> str:
@@ -272,14 +356,26 @@ class CommandHandlers:
         return s.split("\x00", 1)[0]
 
     def on_param_set(self, msg: Any) -> None:
+        """PARAM_SET as PX4 v1.16 answers it (probed, benchmarks/probe_mavsdk_plugins.py): an
+        unknown name or a type other than the parameter's own is not answered at all (PX4 only
+        logs it on its console; MAVSDK retries 6 times and reports TIMEOUT after ~3 s), else the
+        value twice (recorded a: the second 11 ms later; before issue 13 both at once)."""
         e = self._e
         name = self._param_id(msg.param_id)
         if name not in e.params:
-            log.info("emulator: PARAM_SET of unknown parameter %s ignored", name)
+            log.info("emulator: PARAM_SET of unknown parameter %s ignored (as PX4)", name)
             return
-        e.set_param(name, px4.decode_param(msg.param_value, int(e.params[name][1])))
+        ptype = int(e.params[name][1])
+        if int(msg.param_type) != ptype:
+            log.info("emulator: PARAM_SET %s with type %s, not %s: ignored (as PX4)", name,
+                     msg.param_type, ptype)
+            return
+        e.set_param(name, px4.decode_param(msg.param_value, ptype))
         e.emit(self.param_value(name))
-        e.emit(self.param_value(name))  # PX4 answers PARAM_SET twice
+        # PX4 answers PARAM_SET twice, the second time when the parameter-change notification
+        # goes round (recorded a: 11 ms later; probed: MAVSDK, setting the next parameter with
+        # another type, took that late answer for its own and returned WRONG_TYPE)
+        self._param_echo.append((time.monotonic() + PARAM_ECHO_DELAY_S, name))
 
     def on_param_request_read(self, msg: Any) -> None:
         e = self._e
@@ -290,8 +386,20 @@ class CommandHandlers:
             e.emit(self.param_value(name))
 
     def on_param_request_list(self, msg: Any) -> None:
-        for name in self._e.param_names:
-            self._e.emit(self.param_value(name))
+        """The whole list in PX4's order, after PX4's ``_HASH_CHECK`` (index -1, UINT32: a
+        checksum of the set a ground station may cache the list by)."""
+        e = self._e
+        e.emit(M.MAVLink_param_value_message(
+            b"_HASH_CHECK", struct.unpack("<f", struct.pack("<I", self.params_hash()))[0],
+            M.MAV_PARAM_TYPE_UINT32, len(e.params), 65535))
+        for name in e.param_names:
+            e.emit(self.param_value(name))
+
+    def params_hash(self) -> int:
+        """CRC-32 of the names and values (PX4 computes its own over the same; only the value
+        changing with the set matters to a client)."""
+        e = self._e
+        return zlib.crc32("".join(f"{k}={v[0]!r};" for k, v in e.params.items()).encode())
 
 
 COMMANDS: dict[int, Handler] = {
@@ -302,6 +410,7 @@ COMMANDS: dict[int, Handler] = {
     M.MAV_CMD_DO_SET_MODE: CommandHandlers.set_mode,
     M.MAV_CMD_DO_REPOSITION: CommandHandlers.reposition,
     M.MAV_CMD_DO_GRIPPER: CommandHandlers.gripper,
+    M.MAV_CMD_DO_ORBIT: CommandHandlers.orbit,
     M.MAV_CMD_SET_MESSAGE_INTERVAL: CommandHandlers.interval,
     M.MAV_CMD_REQUEST_MESSAGE: CommandHandlers.request,
     M.MAV_CMD_DO_CHANGE_SPEED: CommandHandlers.change_speed,

@@ -35,6 +35,14 @@ PX4_ONBOARD_RATES_HZ: dict[str, float] = {
     "CURRENT_MODE": 0.5,
     "DISTANCE_SENSOR": 10.0,  # recorded 9.85 Hz; sent only with a rangefinder (config)
     "HIL_STATE_QUATERNION": 0.0,  # ground truth: not streamed until requested (as PX4 SIH)
+    # MAVSDK's Telemetry imu, odometry, altitude, fixedwing_metrics, scaled_pressure and
+    # unix_epoch_time streams (recorded rates; probed: the emulator sent none before issue 13)
+    "HIGHRES_IMU": 50.0,
+    "ODOMETRY": 30.0,
+    "ALTITUDE": 10.0,
+    "VFR_HUD": 10.0,
+    "SCALED_PRESSURE": 1.0,
+    "SYSTEM_TIME": 1.0,
 }
 HIL_STATE_DEFAULT_HZ = 50.0
 """Rate of HIL_STATE_QUATERNION when requested with interval 0 ("default")."""
@@ -53,6 +61,9 @@ DISTANCE_SENSOR_MAX_HZ = 50.0
 AUTO_APPROACH_GAIN_PER_S = 0.45
 """RTL's climb / return gain fitted to recorded f1 / f2 (AutopilotParams.auto_approach_gain_per_s)."""
 """PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
+GPS_LOSS_FAILSAFE_DELAY_S = 1.0
+"""How long after the GPS fix is lost the position counts as invalid (PX4 v1.16 has no
+COM_POS_FS_DELAY parameter any more: the emulator no longer reports one)."""
 
 
 def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderParams,
@@ -121,7 +132,7 @@ class EmulatorConfig(BaseModel):
     """A downward distance sensor (the ``simulated`` plugin's): DISTANCE_SENSOR from the TRUE
     pose, seeded noise; disabled by default (then no DISTANCE_SENSOR, as PX4 without one)."""
     params: dict[str, float] = Field(default_factory=dict)
-    """Overrides of PX4 parameters (names from ``px4.DEFAULT_PARAMS``)."""
+    """Overrides of PX4 parameters (names from PX4 v1.16's set: ``px4.default_params()``)."""
     sysid: Annotated[int, Field(ge=1, le=255)] = 1
     compid: Annotated[int, Field(ge=1, le=255)] = 1
 
@@ -181,7 +192,7 @@ def emulator_autopilot_params(cfg: EmulatorConfig, p: Callable[[str], float],
         auto_approach_gain_per_s=AUTO_APPROACH_GAIN_PER_S,
         mission_vertical_acceptance_m=p("NAV_MC_ALT_RAD"),
         mission_acceptance_radius_m=p("NAV_ACC_RAD"), mission_end_brake=True,
-        gps_loss_failsafe_delay_s=p("COM_POS_FS_DELAY"), gps_loss_action=FailsafeAction.LAND,
+        gps_loss_failsafe_delay_s=GPS_LOSS_FAILSAFE_DELAY_S, gps_loss_action=FailsafeAction.LAND,
         gps_failsafe_text="Failsafe activated: no position estimate, landing",
         battery_drain_per_s=drain_per_s, battery_drain_on_ground=False,
         min_arm_battery_fraction=p("BAT_CRIT_THR"), battery_low_fraction=p("BAT_LOW_THR"),

@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from eaglemission.drivers.vehicles import px4
 from eaglemission.drivers.vehicles.emulator_config import distance_sensor_cm
+from eaglemission.drivers.vehicles.kinematics import GRAVITY_MPS2
 from eaglemission.drivers.vehicles.mavlink_dialect import GPS_BIT, PREARM_BIT, SENSORS, M
 
 from eaglemission.geometry import R_to_euler, down_axis_cos_tilt, ned_to_geodetic, quat_to_R
@@ -33,10 +35,14 @@ def system_status(e: Px4Emulator) -> int:
 
 
 def _heartbeat(e: Px4Emulator) -> Any:
-    mode = e.autopilot.mode
-    return M.MAVLink_heartbeat_message(
-        M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, px4.base_mode(mode, e.autopilot.armed),
-        px4.custom_mode(mode), system_status(e), 3)
+    ap = e.autopilot
+    mode = ap.mode
+    base, custom = px4.base_mode(mode, ap.armed), px4.custom_mode(mode)
+    if ap.orbit is not None and mode == FlightMode.POSCTL:
+        # probed: PX4's ORBIT is Position's sub mode 1, without the manual-input flag (0x91)
+        base, custom = base & ~px4.FLAG_MANUAL_INPUT, custom | (px4.POSCTL_ORBIT << 24)
+    return M.MAVLink_heartbeat_message(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, custom,
+                                       system_status(e), 3)
 
 
 def _attitude(e: Px4Emulator) -> Any:
@@ -129,8 +135,9 @@ def mission_current(e: Px4Emulator) -> Any:
 
 def _current_mode(e: Px4Emulator) -> Any:
     ap = e.autopilot
-    return M.MAVLink_current_mode_message(0, px4.custom_mode(ap.mode),
-                                          px4.custom_mode(ap.intended_mode))
+    orbit = (px4.POSCTL_ORBIT << 24) if ap.orbit is not None and ap.mode == FlightMode.POSCTL else 0
+    return M.MAVLink_current_mode_message(0, px4.custom_mode(ap.mode) | orbit,
+                                          px4.custom_mode(ap.intended_mode) | orbit)
 
 
 def _distance_sensor(e: Px4Emulator) -> Any:
@@ -177,6 +184,65 @@ def _autopilot_version(e: Px4Emulator) -> Any:
         0, 0, 0x4541474C45, [0] * 18)
 
 
+def _pressure_pa(altitude_amsl_m: float) -> float:
+    """ISA static pressure at an altitude (what SIH's barometer reads without noise)."""
+    return float(101325.0 * (1.0 - 2.25577e-5 * altitude_amsl_m) ** 5.25588)
+
+
+def _highres_imu(e: Px4Emulator) -> Any:
+    # The IMU's specific force and rates in the body frame (FRD), as PX4 SIH fills it
+    # (recorded: hovering, zacc ~ -9.8, fields_updated 63 = accel + gyro).
+    tr = e.dyn.truth()
+    an, ae, ad = tr.acceleration_ned_mps2
+    R = quat_to_R(tr.attitude_q)
+    f_body = R.T @ [an, ae, ad - GRAVITY_MPS2]
+    amsl = e.home.altitude_amsl_m - tr.position_ned_m[2]
+    return M.MAVLink_highres_imu_message(
+        int(e.sim_time_s * 1e6), float(f_body[0]), float(f_body[1]), float(f_body[2]), 0.0, 0.0,
+        math.radians(tr.yaw_rate_degps), 0.22, 0.017, 0.41, _pressure_pa(amsl), 0.0, amsl, 15.0,
+        63, 0)
+
+
+def _odometry(e: Px4Emulator) -> Any:
+    # The estimate as PX4 sends it (recorded): frame_id and child_frame_id MAV_FRAME_LOCAL_NED,
+    # position in the EKF-origin frame, velocity NED, estimator type 8 (autopilot).
+    est = e.dyn.estimate()
+    n, east, d = est.position_ned_m
+    hl = e.home_local
+    nan21 = [math.nan] * 21
+    return M.MAVLink_odometry_message(
+        int(e.sim_time_s * 1e6), M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_NED, n + hl[0],
+        east + hl[1], d + hl[2], list(est.attitude_q), *est.velocity_ned_mps, 0.0, 0.0,
+        math.radians(est.yaw_rate_degps), nan21, nan21, 0, M.MAV_ESTIMATOR_TYPE_AUTOPILOT, 0)
+
+
+def _altitude(e: Px4Emulator) -> Any:
+    est = e.dyn.estimate()
+    rel = -est.position_ned_m[2]
+    amsl = e.home.altitude_amsl_m + rel
+    local = rel - e.home_local[2]
+    return M.MAVLink_altitude_message(int(e.sim_time_s * 1e6), amsl, amsl, local, rel, math.nan,
+                                      math.nan)
+
+
+def _vfr_hud(e: Px4Emulator) -> Any:
+    est = e.dyn.estimate()
+    vn, ve, vd = est.velocity_ned_mps
+    throttle = int(round(50.0 * (1.0 - est.acceleration_ned_mps2[2] / GRAVITY_MPS2))) if e.autopilot.armed else 0
+    return M.MAVLink_vfr_hud_message(0.0, math.hypot(vn, ve), int(round(est.yaw_deg)) % 360,
+                                     max(0, min(100, throttle)),
+                                     e.home.altitude_amsl_m - est.position_ned_m[2], -vd)
+
+
+def _scaled_pressure(e: Px4Emulator) -> Any:
+    amsl = e.home.altitude_amsl_m - e.dyn.truth().position_ned_m[2]
+    return M.MAVLink_scaled_pressure_message(e.boot_ms(), _pressure_pa(amsl) / 100.0, 0.0, 1179, 0)
+
+
+def _system_time(e: Px4Emulator) -> Any:
+    return M.MAVLink_system_time_message(int(time.time() * 1e6), e.boot_ms())
+
+
 BUILDERS: dict[str, Builder] = {
     "HEARTBEAT": _heartbeat,
     "ATTITUDE": _attitude,
@@ -194,11 +260,17 @@ BUILDERS: dict[str, Builder] = {
     "DISTANCE_SENSOR": _distance_sensor,
     "HIL_STATE_QUATERNION": _hil_state_quaternion,
     "AUTOPILOT_VERSION": _autopilot_version,
+    "HIGHRES_IMU": _highres_imu,
+    "ODOMETRY": _odometry,
+    "ALTITUDE": _altitude,
+    "VFR_HUD": _vfr_hud,
+    "SCALED_PRESSURE": _scaled_pressure,
+    "SYSTEM_TIME": _system_time,
 }
 """Message name -> builder (None from a builder: nothing to send now)."""
 
 SAMPLED = frozenset({"ATTITUDE", "ATTITUDE_QUATERNION", "GLOBAL_POSITION_INT",
-                     "LOCAL_POSITION_NED", "DISTANCE_SENSOR"})
+                     "LOCAL_POSITION_NED", "DISTANCE_SENSOR", "HIGHRES_IMU", "ODOMETRY"})
 """Streams of an estimator / sensor sample stamped ``time_boot_ms``: PX4 sends one only when a
 new sample exists, so never two with the same stamp (0 of 43,803 ATTITUDE_QUATERNION in the
 recorded v1.16 tlogs); the emulator skips a due one whose stamp has not moved (its simulation

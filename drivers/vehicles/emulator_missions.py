@@ -69,14 +69,29 @@ class _Upload:
     retries: int = 0
 
 
+_TO_INT_FRAME = {M.MAV_FRAME_GLOBAL: M.MAV_FRAME_GLOBAL_INT,
+                 M.MAV_FRAME_GLOBAL_RELATIVE_ALT: M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                 M.MAV_FRAME_GLOBAL_TERRAIN_ALT: M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT}
+_TO_FLOAT_FRAME = {v: k for k, v in _TO_INT_FRAME.items()}
+
+
 class MissionProtocol:
-    """Mission and fence uploads / downloads (MISSION_* messages)."""
+    """Mission and fence uploads / downloads (MISSION_* messages), as PX4 v1.16 runs them.
+
+    PX4 starts in the legacy float mode: its first upload request is a MISSION_REQUEST; a
+    client that answers MISSION_ACK UNSUPPORTED (MAVSDK) makes it switch to MISSION_REQUEST_INT
+    and ask again, and any MISSION_ITEM_INT / MISSION_REQUEST_INT received switches it to the
+    int mode too (recorded c; probed with MAVSDK's Geofence upload). Downloads give global
+    items in the int frames (MAV_FRAME_GLOBAL_INT, GLOBAL_RELATIVE_ALT_INT) whatever frame
+    they were uploaded in (probed: MAVSDK uploads fence vertices in MAV_FRAME_GLOBAL, PX4 gives
+    them back in GLOBAL_INT), and PX4 says nothing on a geofence upload (no status text)."""
 
     def __init__(self, emulator: Px4Emulator) -> None:
         self._e = emulator
         self.items: list[Any] = []  # the uploaded mission (MISSION_ITEM_INT messages)
         self.fence_items: list[Any] = []  # the uploaded geofence (MISSION_ITEM_INT, FENCE)
         self._upload: _Upload | None = None
+        self.int_mode = False  # PX4's _int_mode: false at boot
 
     def _ack(self, partner: tuple[int, int], result: int, mission_type: int) -> None:
         self._e.emit(M.MAVLink_mission_ack_message(partner[0], partner[1], result, mission_type))
@@ -115,8 +130,32 @@ class MissionProtocol:
         up = self._upload
         assert up is not None
         up.last_request_wall = wall
-        self._e.emit(M.MAVLink_mission_request_int_message(up.partner[0], up.partner[1],
-                                                           len(up.items), up.mission_type))
+        request = (M.MAVLink_mission_request_int_message if self.int_mode
+                   else M.MAVLink_mission_request_message)
+        self._e.emit(request(up.partner[0], up.partner[1], len(up.items), up.mission_type))
+
+    def on_mission_ack(self, msg: Any) -> None:
+        """During an upload: UNSUPPORTED means the other protocol mode (PX4 switches and asks
+        again); OPERATION_CANCELLED ends the upload."""
+        up = self._upload
+        if up is None or msg.mission_type != up.mission_type:
+            return
+        if msg.type == M.MAV_MISSION_UNSUPPORTED:
+            self.int_mode = not self.int_mode
+            self._request_next(time.monotonic())
+        elif msg.type == M.MAV_MISSION_OPERATION_CANCELLED:
+            self._upload = None
+
+    def on_mission_item(self, msg: Any) -> None:
+        """A float-mode item (degrees): stored as its int-mode equivalent."""
+        self.int_mode = False
+        self._take_item(M.MAVLink_mission_item_int_message(
+            msg.target_system, msg.target_component, msg.seq,
+            _TO_INT_FRAME.get(msg.frame, msg.frame), msg.command, msg.current, msg.autocontinue,
+            msg.param1, msg.param2, msg.param3, msg.param4,
+            int(round(msg.x * 1e7)) if msg.frame in _TO_INT_FRAME else int(msg.x),
+            int(round(msg.y * 1e7)) if msg.frame in _TO_INT_FRAME else int(msg.y),
+            msg.z, msg.mission_type))
 
     def retry(self, wall: float) -> None:
         """Ask again for an item that did not come (PX4: every 250 ms, 8 times)."""
@@ -131,6 +170,10 @@ class MissionProtocol:
         self._request_next(wall)
 
     def on_mission_item_int(self, msg: Any) -> None:
+        self.int_mode = True
+        self._take_item(msg)
+
+    def _take_item(self, msg: Any) -> None:
         up = self._upload
         if up is None or msg.mission_type != up.mission_type:
             return
@@ -146,7 +189,6 @@ class MissionProtocol:
             ok = all(item.command in FENCE_COMMANDS for item in up.items)
             if ok:
                 self.fence_items = list(up.items)
-                self._e.statustext("Geofence uploaded")
             self._ack(up.partner, M.MAV_MISSION_ACCEPTED if ok else M.MAV_MISSION_UNSUPPORTED,
                       M.MAV_MISSION_TYPE_FENCE)
             return
@@ -165,6 +207,14 @@ class MissionProtocol:
                                                      count, msg.mission_type))
 
     def on_mission_request_int(self, msg: Any) -> None:
+        self.int_mode = True
+        self._send_item(msg)
+
+    def on_mission_request(self, msg: Any) -> None:
+        self.int_mode = False
+        self._send_item(msg)
+
+    def _send_item(self, msg: Any) -> None:
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if msg.mission_type == M.MAV_MISSION_TYPE_FENCE and msg.seq < len(self.fence_items):
             it = self.fence_items[msg.seq]
@@ -175,15 +225,24 @@ class MissionProtocol:
         else:
             it = self.items[msg.seq]
             current = int(it.seq == self._e.autopilot.mission.current)
-        self._e.emit(M.MAVLink_mission_item_int_message(
-            src[0], src[1], it.seq, it.frame, it.command, current, it.autocontinue, it.param1,
-            it.param2, it.param3, it.param4, it.x, it.y, it.z, it.mission_type))
-
-    on_mission_request = on_mission_request_int
+        frame = _TO_INT_FRAME.get(it.frame, it.frame)
+        if self.int_mode:
+            self._e.emit(M.MAVLink_mission_item_int_message(
+                src[0], src[1], it.seq, frame, it.command, current, it.autocontinue, it.param1,
+                it.param2, it.param3, it.param4, it.x, it.y, it.z, it.mission_type))
+            return
+        glob = frame in _TO_FLOAT_FRAME
+        self._e.emit(M.MAVLink_mission_item_message(
+            src[0], src[1], it.seq, _TO_FLOAT_FRAME.get(frame, frame), it.command, current,
+            it.autocontinue, it.param1, it.param2, it.param3, it.param4,
+            it.x / 1e7 if glob else float(it.x), it.y / 1e7 if glob else float(it.y), it.z,
+            it.mission_type))
 
     def on_mission_clear_all(self, msg: Any) -> None:
-        if msg.mission_type == M.MAV_MISSION_TYPE_MISSION:
+        if msg.mission_type in (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_ALL):
             self._set_mission([])
+        if msg.mission_type in (M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_ALL):
+            self.fence_items = []  # MAVSDK's Geofence.clear_geofence (probed: then none)
         self._ack((msg.get_srcSystem(), msg.get_srcComponent()), M.MAV_MISSION_ACCEPTED,
                   msg.mission_type)
 

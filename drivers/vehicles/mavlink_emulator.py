@@ -10,9 +10,12 @@ LOCAL_POSITION_NED (relative to an EKF origin a few decimetres from home, as on 
 ATTITUDE(+_QUATERNION), EXTENDED_SYS_STATE, BATTERY_STATUS, GPS_RAW_INT, CURRENT_MODE,
 DISTANCE_SENSOR (a downward rangefinder, when ``rangefinder.enabled``; encoded as PX4 SIH's), the
 mission protocol (upload, download, MISSION_CURRENT, MISSION_ITEM_REACHED re-sent at 1 Hz),
-DO_SET_MODE, DO_REPOSITION, takeoff/land/RTL, offboard SET_POSITION_TARGET_LOCAL_NED with
-PX4's offboard-loss failsafe (COM_OF_LOSS_T, COM_OBL_RC_ACT), DO_GRIPPER, the parameter protocol
-and SET_MESSAGE_INTERVAL / REQUEST_MESSAGE.
+DO_SET_MODE, DO_REPOSITION, DO_ORBIT, takeoff/land/RTL, every offboard setpoint MAVSDK sends
+(SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT, SET_ATTITUDE_TARGET: :mod:`.emulator_offboard`)
+with PX4's offboard-loss failsafe (COM_OF_LOSS_T, COM_OBL_RC_ACT), DO_GRIPPER (IN_PROGRESS, then
+ACCEPTED), MANUAL_CONTROL, the parameter protocol for PX4 v1.16's whole parameter set and
+SET_MESSAGE_INTERVAL / REQUEST_MESSAGE; docs/vehicles.md, "MAVSDK plugins as PX4 answers them",
+compares each with what PX4 v1.16 SITL answered the same MAVSDK calls.
 
 The vehicle is :class:`eaglemission.drivers.vehicles.dynamics.MulticopterDynamics` with the
 PX4-like :class:`eaglemission.drivers.vehicles.autopilot.Autopilot` on top (the ``simulated``
@@ -46,6 +49,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from eaglemission.drivers.vehicles import emulator_offboard as offboard
 from eaglemission.drivers.vehicles import px4
 from eaglemission.drivers.vehicles.autopilot import (
     Autopilot,
@@ -125,6 +129,30 @@ def stream_rates_hz(cfg: EmulatorConfig) -> dict[str, float]:
     return rates
 
 
+def message_handlers(e: Px4Emulator) -> dict[str, Callable[[Any], None]]:
+    """What the emulator does with each message type a client sends (others are ignored)."""
+    return {
+        "COMMAND_LONG": e.commands.on_command_long,
+        "COMMAND_INT": e.commands.on_command_int,
+        "PARAM_SET": e.commands.on_param_set,
+        "PARAM_REQUEST_READ": e.commands.on_param_request_read,
+        "PARAM_REQUEST_LIST": e.commands.on_param_request_list,
+        "MISSION_COUNT": e.missions.on_mission_count,
+        "MISSION_ITEM_INT": e.missions.on_mission_item_int,
+        "MISSION_ITEM": e.missions.on_mission_item,
+        "MISSION_ACK": e.missions.on_mission_ack,
+        "MISSION_REQUEST_LIST": e.missions.on_mission_request_list,
+        "MISSION_REQUEST_INT": e.missions.on_mission_request_int,
+        "MISSION_REQUEST": e.missions.on_mission_request,
+        "MISSION_CLEAR_ALL": e.missions.on_mission_clear_all,
+        "MISSION_SET_CURRENT": e.missions.on_mission_set_current,
+        "SET_POSITION_TARGET_LOCAL_NED": lambda m: offboard.on_set_position_target_local_ned(e, m),
+        "SET_POSITION_TARGET_GLOBAL_INT": lambda m: offboard.on_set_position_target_global_int(e, m),
+        "SET_ATTITUDE_TARGET": lambda m: offboard.on_set_attitude_target(e, m),
+        "MANUAL_CONTROL": e.commands.on_manual_control,
+    }
+
+
 class Px4Emulator:
     """PX4-like multicopter over MAVLink 2. Use as a context manager or ``start()``/``stop()``.
 
@@ -142,10 +170,11 @@ class Px4Emulator:
     def __init__(self, config: EmulatorConfig | None = None, *, link: str | None = None,
                  record: bool = False) -> None:
         self.config = cfg = config or EmulatorConfig()
-        unknown = sorted(set(cfg.params) - set(px4.DEFAULT_PARAMS))
+        known = px4.default_params()
+        unknown = sorted(set(cfg.params) - set(known))
         if unknown:
-            raise ConfigError(f"EmulatorConfig.params: unknown PX4 parameters {unknown}; "
-                              f"known: {sorted(px4.DEFAULT_PARAMS)}")
+            raise ConfigError(f"EmulatorConfig.params: unknown PX4 parameters {unknown}: not in "
+                              f"PX4 v1.16's set ({px4.PARAMS_FILE.name}, {len(known)} names)")
         bad = sorted(set(cfg.stream_rates_hz) - set(PX4_ONBOARD_RATES_HZ))
         if bad:
             raise ConfigError(f"EmulatorConfig.stream_rates_hz: unknown messages {bad}")
@@ -163,12 +192,14 @@ class Px4Emulator:
                         "MPC_Z_V_AUTO_DN": dp.max_down_speed_mps,
                         "MPC_TKO_SPEED": dp.takeoff_speed_mps,
                         "MPC_LAND_SPEED": dp.land_speed_mps,
-                        "MPC_YAWRAUTO_MAX": dp.max_yaw_rate_degps}
+                        "MPC_YAWRAUTO_MAX": dp.max_yaw_rate_degps,
+                        "MAV_SYS_ID": cfg.sysid}
         self.params: dict[str, list[float]] = {
             k: [float(cfg.params.get(k, model_params.get(k, v))), float(t)]
-            for k, (v, t) in px4.DEFAULT_PARAMS.items()
+            for k, (v, t) in known.items()
         }
         self.param_names = list(self.params)
+        self.param_index = {name: i for i, name in enumerate(self.param_names)}
         self._link_url = link
         self._udp: UdpLink | None = None
         self._record = record
@@ -186,25 +217,11 @@ class Px4Emulator:
         self._drain_per_s = cfg.battery_drain_per_s
         self.autopilot = Autopilot(self.dyn, self.autopilot_params(), _Reports(self))
         self.autopilot.offboard_signal_grace = self._recent_setpoint
+        self.autopilot.gripper = "grab"  # PX4's payload deliverer grabs at boot (probed)
         self.commands = CommandHandlers(self)
         self.missions = MissionProtocol(self)
         self.streams = Streams(stream_rates_hz(cfg))
-        self._handlers: dict[str, Callable[[Any], None]] = {
-            "COMMAND_LONG": self.commands.on_command_long,
-            "COMMAND_INT": self.commands.on_command_int,
-            "PARAM_SET": self.commands.on_param_set,
-            "PARAM_REQUEST_READ": self.commands.on_param_request_read,
-            "PARAM_REQUEST_LIST": self.commands.on_param_request_list,
-            "MISSION_COUNT": self.missions.on_mission_count,
-            "MISSION_ITEM_INT": self.missions.on_mission_item_int,
-            "MISSION_REQUEST_LIST": self.missions.on_mission_request_list,
-            "MISSION_REQUEST_INT": self.missions.on_mission_request_int,
-            "MISSION_REQUEST": self.missions.on_mission_request,
-            "MISSION_CLEAR_ALL": self.missions.on_mission_clear_all,
-            "MISSION_SET_CURRENT": self.missions.on_mission_set_current,
-            "SET_POSITION_TARGET_LOCAL_NED": self.commands.on_set_position_target_local_ned,
-            "MANUAL_CONTROL": self.commands.on_manual_control,
-        }
+        self._handlers = message_handlers(self)
         self._t = 0.0
         self._last_wall = 0.0
         self.setpoint_wall = -math.inf
@@ -443,6 +460,7 @@ class Px4Emulator:
             self._advance(min(dt, 0.5))
             self._streams(wall)
             self.missions.retry(wall)
+            self.commands.tick()
         self._link.flush(wall)
 
     def _advance(self, dt: float) -> None:

@@ -11,7 +11,6 @@ PX4 detects the takeoff first. These functions make every such wait bounded and 
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import math
 import time
@@ -27,6 +26,7 @@ if TYPE_CHECKING:  # the vehicle calls these with itself; imported for the annot
     from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
 
 log = logging.getLogger(__name__)
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
 
 
 async def arm(v: MavsdkVehicle) -> None:
@@ -101,18 +101,16 @@ async def request_truth(v: MavsdkVehicle) -> None:
     when asked; a refusal (a real aircraft) is not an error."""
     if v.ground_truth() is None:
         return
-    fields = {"target_system": 1, "target_component": 1, "command": 511,
-              "confirmation": 0, "param1": float(HIL_MSG_ID),
-              "param2": 1e6 / v.config.ground_truth_rate_hz, "param3": 0.0,
-              "param4": 0.0, "param5": 0.0, "param6": 0.0, "param7": 0.0}
-    msg = v.mavsdk["MavlinkMessage"](message_name="COMMAND_LONG", system_id=0, component_id=0,
-                                     target_system_id=1, target_component_id=1,
-                                     fields_json=json.dumps(fields))
-    md = v.plugins["MavlinkDirect"]
-    try:
-        await v.bounded("request ground truth", lambda: md.send_command(msg))
+    try:  # to the connected autopilot's own system id (it wrote 1, which MAVSDK's
+        # MavlinkDirect replaced with its system's id on the wire: not to be relied on)
+        result = await v.session.command_long(
+            "request ground truth", MAV_CMD_SET_MESSAGE_INTERVAL,
+            [float(HIL_MSG_ID), 1e6 / v.config.ground_truth_rate_hz])
     except VehicleError as exc:
         log.info("no ground-truth stream requested: %s", exc)
+        return
+    if result != 0:
+        log.info("no ground-truth stream: the autopilot answered MAV_RESULT %d", result)
 
 
 async def set_takeoff_altitude(v: MavsdkVehicle, act: Any, altitude_m: float) -> None:

@@ -7,8 +7,9 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import functools
+import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from eaglemission.drivers.vehicles.events import EVENT_REFUSED
@@ -25,9 +26,19 @@ from eaglemission.errors import TimeoutError_, VehicleError
 
 log = logging.getLogger(__name__)
 
-PLUGINS = ("Telemetry", "Action", "Offboard", "Mission", "Param", "Gripper", "Geofence",
-           "MavlinkDirect", "Info")
-"""The MAVSDK plugins the driver creates (all at once: plugins only see later messages)."""
+PLUGINS = ("Telemetry", "Action", "Offboard", "Mission", "Param", "Geofence", "MavlinkDirect",
+           "Info")
+"""The MAVSDK plugins the driver creates (all at once: plugins only see later messages). Not
+MAVSDK's Gripper: against PX4 v1.16, which answers a gripper command IN_PROGRESS and then
+ACCEPTED (probed), MAVSDK 4.1's Gripper returns UNKNOWN at the first ack and calls back again
+at the second (the asyncio binding then crashed the process, the blocking one hung its next
+call); :meth:`MavsdkSession.command_long` sends DO_GRIPPER instead."""
+AUTOPILOT_COMPONENT = 1
+"""MAV_COMP_ID_AUTOPILOT1: PX4's autopilot component."""
+MAV_RESULTS = {0: "ACCEPTED", 1: "BUSY", 2: "COMMAND_DENIED", 3: "UNSUPPORTED", 4: "FAILED",
+               5: "IN_PROGRESS", 6: "CANCELLED"}
+"""MAV_RESULT of a final COMMAND_ACK as the driver's result names (MAVSDK's where it has one:
+TEMPORARILY_REJECTED is MAVSDK's BUSY)."""
 
 
 class MavsdkSession:
@@ -45,6 +56,9 @@ class MavsdkSession:
         self._raw_handle: Any = None
         self._executor: concurrent.futures.ThreadPoolExecutor | None = None
         self._leaked: list[Any] = []
+        self.system_id = 0
+        """The connected autopilot's MAVLink system id (PX4's MAV_SYS_ID: 1 by default, but a
+        real aircraft or a second SITL instance may have another)."""
 
     async def open(self, scheme: str, timeout_s: float) -> bool:
         """Add the connection and wait for the first autopilot (at most ``timeout_s``); create
@@ -69,6 +83,7 @@ class MavsdkSession:
         if system is None:
             return False
         self._system = system
+        self.system_id = int(system.get_system_id())
         for name in PLUGINS:
             self.plugins[name] = m[name](system)
         return True
@@ -115,6 +130,25 @@ class MavsdkSession:
             if self.mavsdk and isinstance(exc, self.mavsdk["MavsdkError"]):
                 raise self._error(exc, origin, params) from exc
             raise
+
+    async def command_long(self, origin: str, command: int, params: Sequence[float], *,
+                           timeout_s: float | None = None) -> int:
+        """COMMAND_LONG to the connected autopilot (its own system id, component 1) through
+        MAVSDK's MavlinkDirect, which waits for the final COMMAND_ACK (past IN_PROGRESS ones);
+        the ack's MAV_RESULT. Bounded like every call (``command_timeout_s``)."""
+        values = [float(v) for v in params] + [0.0] * (7 - len(params))
+        fields: dict[str, Any] = {"target_system": self.system_id,
+                                  "target_component": AUTOPILOT_COMPONENT,
+                                  "command": int(command), "confirmation": 0}
+        fields.update({f"param{i + 1}": v for i, v in enumerate(values)})
+        msg = self.mavsdk["MavlinkMessage"](message_name="COMMAND_LONG", system_id=0,
+                                            component_id=0, target_system_id=self.system_id,
+                                            target_component_id=AUTOPILOT_COMPONENT,
+                                            fields_json=json.dumps(fields))
+        md = self.plugins["MavlinkDirect"]
+        ack = await self.bounded(origin, lambda: md.send_command(msg), timeout_s=timeout_s,
+                                 params=tuple(params))
+        return int(json.loads(ack.fields_json).get("result", -1))
 
     def _error(self, exc: Any, origin: str, params: Any) -> VehicleError:
         result = getattr(exc, "result", None)

@@ -62,8 +62,9 @@ from eaglemission.drivers.vehicles.failover_watch import PX4_DEFAULT_OFFBOARD_LO
 from eaglemission.drivers.vehicles.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.link_relay import LinkFaultRelay
 from eaglemission.drivers.vehicles.mavsdk_offboard import OffboardSession
-from eaglemission.drivers.vehicles.mavsdk_session import MavsdkSession
+from eaglemission.drivers.vehicles.mavsdk_session import MAV_RESULTS, MavsdkSession
 from eaglemission.drivers.vehicles.mavsdk_support import (
+    REMEDIES,
     MavlinkPeer,
     MavsdkVehicleConfig,
     downward_range_m,
@@ -92,6 +93,9 @@ from eaglemission.types import (
 __all__ = ["MavsdkVehicle", "MavsdkVehicleConfig", "downward_range_m", "parse_url", "step_towards"]
 
 log = logging.getLogger(__name__)
+
+MAV_CMD_DO_GRIPPER = 211
+GRIPPER_ACTION_RELEASE, GRIPPER_ACTION_GRAB = 0, 1
 
 
 class MavsdkVehicle:
@@ -437,16 +441,24 @@ class MavsdkVehicle:
                                  {FlightMode.RETURN_TO_LAUNCH})
 
     async def grab(self) -> None:
-        self._require("grab()")
-        g = self.plugins["Gripper"]
-        await self.bounded("grab()", lambda: g.grab(self.config.gripper_instance))
-        self.event(EVENT_GRIPPER, "Gripper grab", {"action": "grab"})
+        await self._gripper("grab()", "grab", GRIPPER_ACTION_GRAB)
 
     async def release(self) -> None:
-        self._require("release()")
-        g = self.plugins["Gripper"]
-        await self.bounded("release()", lambda: g.release(self.config.gripper_instance))
-        self.event(EVENT_GRIPPER, "Gripper release", {"action": "release"})
+        await self._gripper("release()", "release", GRIPPER_ACTION_RELEASE)
+
+    async def _gripper(self, origin: str, action: str, code: int) -> None:
+        """DO_GRIPPER, returning once the gripper is done: PX4 v1.16 answers IN_PROGRESS, then
+        ACCEPTED PD_GRIPPER_TO (1 s) later (probed; already in that state: ACCEPTED at once)."""
+        self._require(origin)
+        result = await self.session.command_long(origin, MAV_CMD_DO_GRIPPER,
+                                                 [float(self.config.gripper_instance), float(code)])
+        if result != 0:
+            name = MAV_RESULTS.get(result, f"MAV_RESULT_{result}")
+            self.event(EVENT_REFUSED, f"{origin}: {name}", {"command": origin, "result": name})
+            raise VehicleError(name, origin, (self.config.gripper_instance,),
+                               f"the autopilot answered DO_GRIPPER {name}"
+                               + (f" ({REMEDIES[name]})" if name in REMEDIES else ""))
+        self.event(EVENT_GRIPPER, f"Gripper {action}", {"action": action})
 
     async def get_param(self, name: str) -> float:
         """Read an autopilot parameter (float, else int), e.g. PX4's COM_OF_LOSS_T."""

@@ -6,7 +6,10 @@ the real PX4 v1.16 traffic recorded in ``../shared/data/px4_sitl_tlogs`` (README
 
 from __future__ import annotations
 
+import functools
+import json
 import struct
+from pathlib import Path
 
 from eaglemission.types import FlightMode
 
@@ -15,6 +18,8 @@ MAIN_MANUAL, MAIN_ALTCTL, MAIN_POSCTL, MAIN_AUTO, MAIN_ACRO, MAIN_OFFBOARD, MAIN
     1, 2, 3, 4, 5, 6, 7,
 )
 AUTO_READY, AUTO_TAKEOFF, AUTO_LOITER, AUTO_MISSION, AUTO_RTL, AUTO_LAND = 1, 2, 3, 4, 5, 6
+POSCTL_ORBIT = 1
+"""Position's sub mode while an orbit (DO_ORBIT) flies (probed: custom mode main 3, sub 1)."""
 
 MODE_TO_PX4: dict[FlightMode, tuple[int, int]] = {
     FlightMode.MANUAL: (MAIN_MANUAL, 0),
@@ -118,47 +123,25 @@ def custom_version_bytes(git_hash: str = PX4_GIT_HASH) -> list[int]:
     return [0, 0, 0, *reversed(head)]
 
 
-# The parameters the emulator models (PX4 v1.16 defaults; MIS_TAKEOFF_ALT etc. are what MAVSDK
-# touches, COM_* are the failsafe settings a mission should read back before flying).
-DEFAULT_PARAMS: dict[str, tuple[float, int]] = {
-    "MIS_TAKEOFF_ALT": (2.5, PARAM_REAL32),
-    # RTL heights as PX4 v1.16's multicopter airframes set them (sihsim_quadx, recorded d-i:
-    # 30 / 10 m; the parameters' own defaults are 60 / 30 m)
-    "RTL_RETURN_ALT": (30.0, PARAM_REAL32),
-    "RTL_DESCEND_ALT": (10.0, PARAM_REAL32),
-    "COM_OF_LOSS_T": (1.0, PARAM_REAL32),
-    "COM_OBL_RC_ACT": (0, PARAM_INT32),  # 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold
-    "COM_DL_LOSS_T": (10.0, PARAM_REAL32),
-    "NAV_DLL_ACT": (0, PARAM_INT32),  # 0 none, 1 hold, 2 return, 3 land
-    "NAV_RCL_ACT": (2, PARAM_INT32),  # RC loss: 2 return (reported only: no RC is emulated)
-    "COM_RC_IN_MODE": (1, PARAM_INT32),  # reported only (recorded d-i: 1, MAVLink only)
-    "GF_ACTION": (2, PARAM_INT32),  # geofence breach: 2 hold (reported only: no PX4 geofence)
-    "COM_DISARM_LAND": (2.0, PARAM_REAL32),
-    "COM_LOW_BAT_ACT": (0, PARAM_INT32),  # 0 warning, 2 land, 3 return at critical
-    "BAT_LOW_THR": (0.15, PARAM_REAL32),
-    "BAT_CRIT_THR": (0.07, PARAM_REAL32),
-    "BAT_EMERGEN_THR": (0.05, PARAM_REAL32),
-    "COM_POS_FS_DELAY": (1.0, PARAM_REAL32),
-    "MPC_XY_CRUISE": (5.0, PARAM_REAL32),
-    "MPC_XY_VEL_MAX": (12.0, PARAM_REAL32),
-    "MPC_VEL_MANUAL": (10.0, PARAM_REAL32),  # Position mode, sticks at full deflection
-    "MPC_Z_VEL_MAX_UP": (3.0, PARAM_REAL32),
-    "MPC_Z_VEL_MAX_DN": (1.5, PARAM_REAL32),
-    "MPC_Z_V_AUTO_UP": (3.0, PARAM_REAL32),  # autopilot-flown climbs (RTL, missions)
-    "MPC_Z_V_AUTO_DN": (1.5, PARAM_REAL32),
-    "MPC_ACC_HOR": (3.0, PARAM_REAL32),
-    "MPC_XY_P": (0.95, PARAM_REAL32),
-    "RTL_CONE_ANG": (45, PARAM_INT32),
-    "RTL_MIN_DIST": (10.0, PARAM_REAL32),
-    "RTL_LAND_DELAY": (0.0, PARAM_REAL32),
-    "RTL_TYPE": (0, PARAM_INT32),
-    "COM_RC_OVERRIDE": (1, PARAM_INT32),
-    "COM_FAIL_ACT_T": (5.0, PARAM_REAL32),
-    "COM_SPOOLUP_TIME": (1.0, PARAM_REAL32),
-    "MPC_TKO_SPEED": (1.5, PARAM_REAL32),
-    "MPC_LAND_SPEED": (0.7, PARAM_REAL32),
-    "MPC_YAWRAUTO_MAX": (45.0, PARAM_REAL32),
-    "NAV_ACC_RAD": (2.0, PARAM_REAL32),
-    "NAV_MC_ALT_RAD": (0.8, PARAM_REAL32),
-    "SYS_AUTOSTART": (10040, PARAM_INT32),
-}
+PARAMS_FILE = Path(__file__).with_name("px4_params_v1_16_sihsim_quadx.json")
+"""PX4 v1.16's parameter set as the SIH quad (sihsim_quadx) reports it: 904 names, types and
+values in PX4's order (its ``param_index``), imported from a running SITL by
+``benchmarks/px4_params_import.py`` and checked against the build's parameter metadata."""
+PX4_TYPES = {"INT32": PARAM_INT32, "REAL32": PARAM_REAL32}
+MODELLED_PARAMS = frozenset({
+    "MIS_TAKEOFF_ALT", "RTL_RETURN_ALT", "RTL_DESCEND_ALT", "RTL_CONE_ANG", "COM_OF_LOSS_T",
+    "COM_OBL_RC_ACT", "COM_DL_LOSS_T", "NAV_DLL_ACT", "COM_DISARM_LAND", "COM_LOW_BAT_ACT",
+    "BAT_LOW_THR", "BAT_CRIT_THR", "BAT_EMERGEN_THR", "MPC_XY_CRUISE", "MPC_XY_VEL_MAX",
+    "MPC_VEL_MANUAL", "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN", "MPC_Z_V_AUTO_UP",
+    "MPC_Z_V_AUTO_DN", "MPC_TKO_SPEED", "MPC_LAND_SPEED", "MPC_YAWRAUTO_MAX", "MPC_THR_HOVER",
+    "NAV_ACC_RAD", "NAV_MC_ALT_RAD", "PD_GRIPPER_TO", "MC_ORBIT_RAD_MAX", "MAV_SYS_ID"})
+"""The parameters the emulator's behaviour follows (the others are only reported)."""
+
+
+@functools.cache
+def default_params() -> dict[str, tuple[float, int]]:
+    """PX4 v1.16's parameters, name -> (value, MAV_PARAM_TYPE), in PX4's order (read once from
+    :data:`PARAMS_FILE`). MAV_SYS_ID is 1 there; the emulator reports its own system id."""
+    with PARAMS_FILE.open(encoding="utf-8") as f:
+        doc = json.load(f)
+    return {str(name): (float(value), PX4_TYPES[ptype]) for name, ptype, value, _ in doc["params"]}

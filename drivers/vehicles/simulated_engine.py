@@ -231,6 +231,15 @@ class SimulatedModel:
             self._sync_if_connected()
             return self._truth.pose_at(timestamp_ns, self._dyn.step_ns)
 
+    def true_motion_at(self, timestamp_ns: int) -> tuple[XYZ, XYZ] | None:
+        """True velocity (NED, m/s) and angular velocity (NED, rad/s) at a host time, from the
+        truth log's rows around it (what the synthetic cameras blur with); None outside it."""
+        with self._lock:
+            if self._dyn is None:
+                return None
+            self._sync_if_connected()
+            return self._truth.motion_at(timestamp_ns, self._dyn.step_ns)
+
     def trajectory(self, *, since_ns: int | None = None, every_s: float | None = None) -> list[VehicleState]:
         """TRUE states (with the armed / in-air / mode of that moment) at every internal step,
         or every ``every_s`` seconds, oldest first."""
@@ -326,6 +335,10 @@ class SimulatedTruth:
 
     def pose_at(self, timestamp_ns: int) -> tuple[XYZ, Quat] | None:
         return self._v.true_pose_at(timestamp_ns)
+
+    def motion_at(self, timestamp_ns: int) -> tuple[XYZ, XYZ] | None:
+        """Optional beyond the protocol: true velocity and angular velocity (NED)."""
+        return self._v.true_motion_at(timestamp_ns)
 
     def trajectory(self) -> list[VehicleState]:
         return self._v.trajectory()

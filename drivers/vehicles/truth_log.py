@@ -16,6 +16,7 @@ from eaglemission.drivers.vehicles.dynamics import (
 )
 from numpy.typing import NDArray
 
+from eaglemission.geometry import quat_to_R, rotation_vector
 from eaglemission.types import XYZ, FlightMode, Quat, VehicleState
 
 MODES: tuple[FlightMode, ...] = tuple(FlightMode)
@@ -87,6 +88,27 @@ class TruthLog:
         yaw = c[9][i] + s * wrap_deg(c[9][j] - c[9][i])
         pos = (vals[0], vals[1], vals[2])
         return pos, body_attitude(vals[6], vals[7], vals[8], yaw, on_ground=pos[2] >= 0.0)
+
+    def motion_at(self, timestamp_ns: int, step_ns: int) -> tuple[XYZ, XYZ] | None:
+        """Velocity (NED, m/s) and angular velocity (NED, rad/s: ``R(t + dt) = exp([w]x dt)
+        R(t)``) at a time, where :meth:`pose_at` answers: the velocity interpolated between
+        the two rows around it (the last row's beyond it), the angular velocity of the
+        attitude change between those two rows (the last two beyond the last row)."""
+        times = self._t
+        if not times or timestamp_ns < times[0] or timestamp_ns > times[-1] + step_ns:
+            return None
+        c = self._cols
+        if len(times) < 2:
+            return (c[3][0], c[4][0], c[5][0]), (0.0, 0.0, 0.0)
+        j = min(max(bisect.bisect_right(times, timestamp_ns), 1), len(times) - 1)
+        i = j - 1
+        span = times[j] - times[i]
+        s = min(1.0, max(0.0, (timestamp_ns - times[i]) / span)) if span > 0 else 0.0
+        vel = tuple(c[k][i] + s * (c[k][j] - c[k][i]) for k in (3, 4, 5))
+        Ri, Rj = (quat_to_R(body_attitude(c[6][k], c[7][k], c[8][k], c[9][k],
+                                          on_ground=c[2][k] >= 0.0)) for k in (i, j))
+        w = rotation_vector(Rj @ Ri.T) / max(span * 1e-9, 1e-9)
+        return (vel[0], vel[1], vel[2]), (float(w[0]), float(w[1]), float(w[2]))
 
     def states(self, make: TruthStateFactory, *, since_ns: int | None = None,
                every_s: float | None = None) -> list[VehicleState]:

@@ -217,12 +217,57 @@ async def test_errors_are_typed_with_call_and_result_and_params_and_gripper() ->
         with pytest.raises(VehicleError) as info:
             await v.get_param("NO_SUCH_PARAM")
         assert info.value.origin == "get_param()" and info.value.params == "NO_SUCH_PARAM"
-        await v.grab()
-        assert emu.snapshot().gripper == "grab"
         await v.release()
         assert emu.snapshot().gripper == "release"
+        await v.grab()
+        assert emu.snapshot().gripper == "grab"
         with pytest.raises(VehicleError, match="altitude_m"):
             await v.takeoff(float("nan"))
+
+
+async def test_gripper_waits_for_px4s_in_progress_then_accepted() -> None:
+    """PX4 v1.16 answers DO_GRIPPER IN_PROGRESS, then ACCEPTED PD_GRIPPER_TO (1 s) later
+    (probed: ``python benchmarks/probe_mavsdk_plugins.py --url udpin://0.0.0.0:14541 --tap``);
+    MAVSDK 4.1's Gripper plugin returns UNKNOWN at the first ack and calls back again at the
+    second (it crashed the probe), so ``grab()`` / ``release()`` send DO_GRIPPER through
+    MavlinkDirect, which waits for the final ack: they return once the gripper is done. A
+    refusal is a VehicleError with the MAV_RESULT."""
+    async with flying_pair(4.0) as (emu, v, clock):
+        assert emu.snapshot().gripper == "grab"  # PX4 grabs at boot
+        t0 = clock.now_ns()
+        await v.release()
+        assert emu.snapshot().gripper == "release"
+        assert (clock.now_ns() - t0) / 1e9 > 0.8  # waited for the final ACCEPTED
+        t0 = clock.now_ns()
+        await v.release()  # already released: ACCEPTED at once
+        assert (clock.now_ns() - t0) / 1e9 < 0.8
+        emu.deny_next_command("DO_GRIPPER")
+        with pytest.raises(VehicleError) as info:
+            await v.grab()
+        assert (info.value.result, info.value.origin) == ("COMMAND_DENIED", "grab()")
+        await v.grab()
+        assert emu.snapshot().gripper == "grab"
+        assert [e.data["action"] for e in v.events() if e.kind == "gripper"] == ["release", "release", "grab"]
+
+
+async def test_driver_commands_the_autopilots_own_system_id() -> None:
+    """A real aircraft may have another MAV_SYS_ID than 1 (a second PX4 SITL instance has 2:
+    ``PX4_INSTANCE=1``): the driver's own COMMAND_LONGs (the ground-truth stream request,
+    DO_GRIPPER) name the connected autopilot's system id. Before, request_truth wrote target
+    system 1 into its fields; MAVSDK 4.1's MavlinkDirect put the bound system's id on the wire
+    anyway, so nothing failed (checked against PX4 instance 1 and here); the driver no longer
+    relies on that rewrite. Fails on d470359 only for the session's ``system_id`` and the
+    gripper."""
+    async with flying_pair(4.0, record=True, emulator={"sysid": 2}) as (emu, v, clock):
+        assert v.session.system_id == 2
+        truth = v.ground_truth()
+        assert truth is not None
+        await wait_for(truth.available, 5.0, "HIL_STATE_QUATERNION from system 2")
+        await v.release()
+        assert emu.snapshot().gripper == "release"
+        assert await v.get_param("MAV_SYS_ID") == 2
+        commands = emu.received("COMMAND_LONG")
+        assert commands and {m.target_system for m in commands} == {2}
 
 
 async def test_status_texts_become_events_and_link_loss_is_reported() -> None:
