@@ -3,6 +3,7 @@
     python benchmarks/bench_detectors.py                      # speed, all loadable detectors
     python benchmarks/bench_detectors.py --detectors dtdmi,dtdmi@literal,sr --frames 40
     python benchmarks/bench_detectors.py --no-target          # false detections, empty scenes
+    python benchmarks/bench_detectors.py --detectors sr,dtdmi@aerial --target-image first-frame
 
 Speed: every detector and the reference (``cv2.saliency.StaticSaliencySpectralResidual``,
 called directly on the BGR frame) run *interleaved* on the same frames in the same process, so
@@ -83,17 +84,40 @@ def fbm_texture(h: int, w: int, rng: np.random.RandomState) -> np.ndarray:
     return np.clip(acc + base, 0, 255).astype(np.uint8)
 
 
-def load_detectors(spec_text: str | None, params: list[str]) -> list[tuple[str, object]]:
+def target_image(spec: str | None) -> np.ndarray | None:
+    """``--target-image``: an image file, or ``first-frame`` (the bounding box of the first
+    DAVIS 'dog' mask cropped from its frame)."""
+    if spec is None:
+        return None
+    if spec != "first-frame":
+        img = cv2.imread(spec)
+        if img is None:
+            raise EagleMissionError(f"--target-image {spec!r}: not an image file")
+        return img
+    from eaglemission.detectors.boxes import box_from_mask, crop_box
+
+    frame = DAVIS / "dog" / "frames" / "00000.jpg"
+    mask = cv2.imread(str(DAVIS / "dog" / "gt" / "00000.png"), cv2.IMREAD_GRAYSCALE)
+    img = cv2.imread(str(frame))
+    if img is None or mask is None:
+        raise EagleMissionError("--target-image first-frame: DAVIS 'dog' frame 0 and its mask "
+                                "not found (../shared absent?); give an image file")
+    return crop_box(img, box_from_mask(mask >= 128))
+
+
+def load_detectors(spec_text: str | None, params: list[str],
+                   appearance: np.ndarray | None = None) -> list[tuple[str, object]]:
+    ctx = {} if appearance is None else {"appearance": appearance}
     if spec_text is None:
         names = sorted(registry.available("detectors"))
         out = []
         for name in names:
             try:
-                out.append((name, registry.load("detectors", name)))
+                out.append((name, registry.load("detectors", name, **ctx)))
             except EagleMissionError as exc:
                 print(f"# skipped {name}: {exc}", file=sys.stderr)
         return out
-    return [(s.label, registry.load("detectors", s.name, s.params))
+    return [(s.label, registry.load("detectors", s.name, s.params, **ctx))
             for s in parse_detector_specs(spec_text, params)]
 
 
@@ -127,9 +151,11 @@ def speed(args: argparse.Namespace) -> int:
     if frames is None:
         frames = generated_frames(args.frames)
         source = f"generated textured frames ({len(frames)})"
-    dets = load_detectors(args.detectors, args.params)
+    dets = load_detectors(args.detectors, args.params, target_image(args.target_image))
     print(f"# per-frame CPU time of detect() (one thread), {source}, x{args.repeat}; "
-          f"ratios to cv2 SR timed on the same frames in the same run")
+          f"ratios to cv2 SR timed on the same frames in the same run"
+          + (f"; every detector given the target image {args.target_image}"
+             if args.target_image else ""))
     for size in SIZES:
         t = time_speed(frames, dets, size, args.repeat)
         ref = float(np.median(t["SR (cv2, reference)"]))
@@ -236,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=30, help="frames per run / per sequence")
     p.add_argument("--repeat", type=int, default=1, help="passes over the frames (speed)")
     p.add_argument("--no-target", action="store_true", help="false detections on empty ground")
+    p.add_argument("--target-image", default=None, metavar="PATH|first-frame",
+                   help="speed: give every detector this example image of the target "
+                        "(context appearance); first-frame: the first DAVIS 'dog' mask's box")
     args = p.parse_args(argv)
     single_thread()
     try:

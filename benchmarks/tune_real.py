@@ -76,7 +76,7 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 DATA = {"uav": SHARED / "uav_tracking", "davis": SHARED / "video_saliency" / "DAVIS2016"}
 FPS = {"uav": 10.0, "davis": 24.0}  # UAV123@10fps; the UAVDT/DTB70 clips are treated alike
-VERSION = 3  # bump when the detector code changes what a configuration computes
+VERSION = 4  # bump when the detector code changes what a configuration computes
 
 
 # ---------------------------------------------------------------------------------------------
@@ -116,11 +116,27 @@ def grid_aerial_round1() -> list[dict[str, Any]]:
 
 
 def grid_aerial_appearance() -> list[dict[str, Any]]:
-    """With the target image: the back-projection's prior, the saliency's weight in the map
-    and the exponent of the region re-ranking by colour histogram (0: off)."""
+    """With the target image (round 2): unpooled colour bins (the model, its back-projection
+    and the re-ranking histograms), following the previous best detection (weight 0: off; the
+    Gaussian's sigma fixed at 0.1 of the diagonal), the re-ranking exponent; regions: peak
+    fraction. The back-projection's prior and the saliency's weight stay at the config's
+    defaults (0.1, 0.25: round 1's choice in four folds of five)."""
+    out = []
+    for pool, track, gamma in itertools.product((True, False), (0.0, 0.3), (4.0, 8.0)):
+        params = {"preset": "aerial", "appearance_pool": pool,
+                  "appearance_track_weight": track, "appearance_rank_exponent": gamma}
+        regions = [{"peak_fraction": pf} for pf in (0.7, 0.8)]
+        out.append({"params": params, "regions": regions})
+    return out
+
+
+def grid_aerial_appearance_round1() -> list[dict[str, Any]]:
+    """Round 1 with the target image (51.2 % out of fold): the back-projection's prior, the
+    saliency's weight in the map and the exponent of the region re-ranking by colour histogram
+    (0: off)."""
     out = []
     for prior, w, gamma in itertools.product((0.03, 0.1), (0.1, 0.25), (0.0, 4.0, 8.0)):
-        params = {"preset": "aerial", "appearance_prior": prior,
+        params = {"preset": "aerial", "appearance_prior": prior, "appearance_pool": True,
                   "appearance_saliency_weight": w, "appearance_rank_exponent": gamma}
         regions = [{"peak_fraction": pf} for pf in (0.6, 0.7, 0.8)]
         out.append({"params": params, "regions": regions})
@@ -128,6 +144,17 @@ def grid_aerial_appearance() -> list[dict[str, Any]]:
 
 
 def grid_default() -> list[dict[str, Any]]:
+    """The default preset's grid on DAVIS: round 1's (:func:`grid_default_round1`) with and
+    without the colour propagation (weight 0.5; 0: off)."""
+    out = []
+    for point in grid_default_round1():
+        for cp in (0.0, 0.5):
+            out.append({"params": {**point["params"], "colour_propagation": cp},
+                        "regions": point["regions"]})
+    return out
+
+
+def grid_default_round1() -> list[dict[str, Any]]:
     """The default preset's grid on DAVIS: the block contrast cue added after Eq. (15) (weight 0:
     the previous default), the S_s exponent (0: S_s left out), smoothing, centre weight (max F
     does not depend on the regions)."""
@@ -144,7 +171,9 @@ def grid_default() -> list[dict[str, Any]]:
 
 
 GRIDS = {"aerial": grid_aerial, "aerial_round1": grid_aerial_round1,
-         "aerial_appearance": grid_aerial_appearance, "default": grid_default}
+         "aerial_appearance": grid_aerial_appearance,
+         "aerial_appearance_round1": grid_aerial_appearance_round1, "default": grid_default,
+         "default_round1": grid_default_round1}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -289,30 +318,42 @@ def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: b
         det.reset()
         accs = [SeqScore(BoxScores(), CurveAccumulator() if kind == "davis" else None)
                 for _ in regions_list]
+        model = getattr(getattr(det, "engine", None), "appearance", None)
+        resolved_r = getattr(getattr(det, "engine", None), "r", None)
+        gamma = getattr(resolved_r, "appearance_rank_exponent", 0.0)
+        # with an appearance image the detector follows its previous best detection, so the
+        # regions run on every frame (scored or not), once per region setting
+        tracks: list[tuple[float, float] | None] = [None] * len(cfgs)
         for i, full in enumerate(seq.frames):
             h, w = full.shape[:2]
             small = cv2.resize(full, (max(8, w // ds), max(8, h // ds)),
                                interpolation=cv2.INTER_AREA) if ds > 1 else full
             sal = det.saliency(Frame(small, frame_time_ns(i, FPS[kind]), "tune", i))
-            if i < seq.first_scored or (i - seq.first_scored) % step:
+            scored = i >= seq.first_scored and (i - seq.first_scored) % step == 0
+            if not scored and model is None:
                 continue
             # scored at the processing resolution: the box scaled down (edges: (e + 0.5) / s - 0.5)
             sx, sy = w / small.shape[1], h / small.shape[0]
             box = (seq.boxes[i] + 0.5) / [sx, sy, sx, sy] - 0.5
             sal_full = None
-            if kind == "davis":
+            if kind == "davis" and scored:
                 sal_full = cv2.resize(sal, (w, h), interpolation=cv2.INTER_LINEAR)
-            model = getattr(getattr(det, "engine", None), "appearance", None)
-            gamma = getattr(det.config, "appearance_rank_exponent", 0.0)
-            for acc, rc in zip(accs, cfgs):
-                if model is not None and gamma > 0:  # what DTDMIDetector.detect does
+            for k, (acc, rc) in enumerate(zip(accs, cfgs)):
+                s_k = sal
+                if model is not None:  # what DTDMIDetector.detect does
+                    s_k = det.follow(sal, tracks[k])
+                if model is not None and gamma > 0:
                     wide = rc.model_copy(update={"max_detections": max(
                         rc.max_detections, det.config.appearance_candidates)})
-                    dets, t = find_regions(sal, wide)
-                    dets = appearance_rerank(dets, small, model.q, gamma, rc.max_detections)
+                    dets, t = find_regions(s_k, wide)
+                    dets = appearance_rerank(dets, small, model.q, gamma, rc.max_detections,
+                                             pool=model.pool)
                 else:
-                    dets, t = find_regions(sal, rc)
-                acc.box.add(score_frame(DetectionResult(sal, dets, 0, "t", i, t), box))
+                    dets, t = find_regions(s_k, rc)
+                tracks[k] = dets[0].center_px if dets else None
+                if not scored:
+                    continue
+                acc.box.add(score_frame(DetectionResult(s_k, dets, 0, "t", i, t), box))
                 if acc.curves is not None and seq.masks[i] is not None:
                     acc.curves.add(normalize_map(sal_full), seq.masks[i])
         for res, acc in zip(results, accs):
@@ -347,11 +388,18 @@ def run_full(kind: str, name: str, params: dict[str, Any], seq: Seq, use_image: 
     return acc
 
 
-def merged_params(point: dict[str, Any], regions: dict[str, Any]) -> dict[str, Any]:
+def merged_params(point: dict[str, Any], regions: dict[str, Any],
+                  use_image: bool = False) -> dict[str, Any]:
+    """A grid point's detector params with one of its region settings. With the target image
+    a DTDMI point's peak fraction is also its ``appearance_peak_fraction`` (which the detector
+    applies, with an image, over ``regions.peak_fraction``): the search applies it to the
+    cached maps as a region setting."""
     p = dict(point["params"])
     p.setdefault("downscale", 2)
     if regions:
         p["regions"] = {**p.get("regions", {}), **regions}
+        if use_image and point.get("detector", "dtdmi") == "dtdmi" and "peak_fraction" in regions:
+            p["appearance_peak_fraction"] = regions["peak_fraction"]
     return p
 
 
@@ -466,7 +514,8 @@ def main(argv: list[str] | None = None) -> int:
     fold_of = {n: k for k, f in enumerate(folds) for n in f}
     for n in names:
         point, regions = chosen[fold_of[n]]
-        oof[n] = run_full(kind, point["detector"], merged_params(point, regions), by_name[n],
+        oof[n] = run_full(kind, point["detector"],
+                          merged_params(point, regions, a.target_image), by_name[n],
                           a.target_image, a.cache)
     rows = {f"**{a.detector} tuned, out of fold**": oof}
     refs: dict[str, dict[str, SeqScore]] = {}

@@ -15,6 +15,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from eaglemission.detectors.regions import outline_hull
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import order_corners
@@ -146,7 +147,7 @@ def colour_blob(image_bgr: np.ndarray, target_bgr: Any, tolerance: float, near_p
     return Detection(score=1.0, center_px=(float(cx), float(cy)), corners_px=corners,
                      size_px=(float(long_), float(short)), angle_deg=float(ang),
                      area_px=float(stats[best, cv2.CC_STAT_AREA] * step * step),
-                     camera_id=camera_id)
+                     camera_id=camera_id, hull_px=outline_hull(pts, step / 2.0))
 
 
 class ColourBlobTracker:

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import order_corners
@@ -144,6 +144,21 @@ def long_side_angle_deg(corners: NDArray[np.float64]) -> float:
     return (a + 90.0) % 180.0 - 90.0
 
 
+def outline_hull(points_px: ArrayLike, half_px: float = 0.5) -> NDArray[np.float64] | None:
+    """Convex hull of a region's outline pixels taken as squares: each point (a pixel or block
+    centre) stands for the square ``half_px`` around it, so the hull covers the region's pixels
+    rather than passing through their centres (a 10 x 6 px block gives a 10 x 6 px hull, as the
+    MBR does). (N, 2) float64; None when empty."""
+    pts = np.asarray(points_px, dtype=np.float32).reshape(-1, 2)
+    if len(pts) == 0:
+        return None
+    h = np.float32(half_px)
+    squares = (pts[:, None, :] + np.array([[-h, -h], [h, -h], [h, h], [-h, h]],
+                                          dtype=np.float32)[None]).reshape(-1, 2)
+    hull: NDArray[np.float64] = cv2.convexHull(squares).reshape(-1, 2).astype(np.float64)
+    return hull if len(hull) >= 3 else None
+
+
 def find_regions(
     saliency: Saliency,
     cfg: RegionsConfig,
@@ -174,7 +189,8 @@ def find_regions(
     grow = 1.0 if cfg.mbr_pixel_edges else 0.0
     sal = np.asarray(saliency, dtype=np.float32)
     image_area = float(sal.shape[0] * sal.shape[1])
-    candidates: list[tuple[float, tuple[Sequence[float], tuple[float, float], float]]] = []
+    candidates: list[tuple[float, tuple[Sequence[float], tuple[float, float], float],
+                           NDArray[Any]]] = []
     for cnt in contours:
         x, y, bw, bh = cv2.boundingRect(cnt)
         # boundingRect counts pixels, so bw * bh bounds every area below from above.
@@ -196,15 +212,17 @@ def find_regions(
         region &= mask[y : y + bh, x : x + bw]
         n_px = cv2.countNonZero(region)
         mean_sal = cv2.mean(sal[y : y + bh, x : x + bw], mask=region)[0] if n_px else 0.0
-        candidates.append((float(mean_sal) * math.sqrt(max(n_px, 1)), (centre, (w, h), angle)))
+        candidates.append((float(mean_sal) * math.sqrt(max(n_px, 1)), (centre, (w, h), angle),
+                           cnt))
     candidates.sort(key=lambda c: c[0], reverse=True)
     found = []
-    for score, rect in candidates[: cfg.max_detections]:
+    for score, rect, cnt in candidates[: cfg.max_detections]:
         (cu, cv), (w, h), _ = rect
         corners = order_corners(cv2.boxPoints(rect))
         found.append(Detection(
             score=score, center_px=(float(cu), float(cv)), corners_px=corners,
             size_px=(max(w, h), min(w, h)), angle_deg=long_side_angle_deg(corners),
             area_px=w * h, camera_id=camera_id,
+            hull_px=outline_hull(cnt) if cfg.mbr_pixel_edges else outline_hull(cnt, 0.0),
         ))
     return tuple(found), t / 255.0

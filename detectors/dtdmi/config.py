@@ -86,11 +86,30 @@ class DTDMIConfig(DetectorConfig):
         "fraction of the frame the target is expected to cover (colour back-projection)"))
     appearance_saliency_weight: float = Field(0.25, ge=0, le=100, description=(
         "with an appearance image: S <- A + this x S (A: the colour back-projection)"))
-    appearance_rank_exponent: float = Field(4.0, ge=0, le=32, description=(
+    appearance_rank_exponent: float | None = Field(None, ge=0, le=32, description=(
         "with an appearance image: regions re-ranked by score x BC^this (BC: Bhattacharyya "
-        "coefficient of the region's colour histogram and the example's); 0: off"))
+        "coefficient of the region's colour histogram and the example's); 0: off; None: as the "
+        "preset says (aerial: 8, the others: 4)"))
     appearance_candidates: int = Field(12, ge=1, le=100, description=(
         "with an appearance image: regions re-ranked before keeping regions.max_detections"))
+    appearance_pool: bool | None = Field(None, description=(
+        "with an appearance image: pool every colour bin with its 26 neighbours in the colour "
+        "model, its back-projection and the re-ranking histograms (tolerance to shading); "
+        "false: the 4096 bins as they are (finer colour discrimination); None: as the preset "
+        "says"))
+    appearance_track_weight: float | None = Field(None, ge=0, le=1, description=(
+        "with an appearance image: the map attenuated away from the previous frame's best "
+        "detection, S x ((1 - this) + this x G), G a Gaussian of appearance_track_sigma_frac; "
+        "0: off; None: as the preset says"))
+    appearance_track_sigma_frac: float = Field(0.1, gt=0, le=1, description=(
+        "sigma of appearance_track_weight's Gaussian, fraction of the image diagonal"))
+    appearance_peak_fraction: float | None = Field(None, gt=0, le=1, description=(
+        "with an appearance image: the adaptive regions' peak_fraction (the colour model makes "
+        "the target's region brighter than its surroundings); None: as the preset says "
+        "(aerial: 0.7, measured out of fold with the image; the others: regions.peak_fraction)"))
+    colour_propagation: float | None = Field(None, ge=0, le=1, description=(
+        "S <- (1 - this) S + this x (the mean of S over the pixels of each pixel's colour bin); "
+        "0: off; None: as the preset says"))
     # -- speed
     downscale: int = Field(1, ge=1, le=8, description="process at 1/downscale resolution")
     backend: Literal["numba", "numpy"] = "numba"
@@ -145,6 +164,11 @@ class Resolved:
     block_unit: float = 20.0
     block_fusion: str = "static"
     ego_motion: str = "none"
+    appearance_pool: bool = True
+    appearance_rank_exponent: float = 4.0
+    appearance_track_weight: float = 0.0
+    colour_propagation: float = 0.0
+    appearance_peak_fraction: float | None = None
 
 
 #: field preset: S_s (chromatic l-alpha-beta units) mapped to 0.5; T = 120/255 then needs
@@ -154,20 +178,25 @@ FIELD_GAIN = 1.0
 
 PRESETS: dict[str, Resolved] = {
     "literal": Resolved("inverse_square", "lms", False, 1.0, 1.0, 0.0, 0.0, "frame_max", 1.0),
-    # default: S_M + Eq. (2) per block, tuned out of fold on DAVIS (benchmarks/tune_real.py);
-    # the cluster cue of Eqs. (1)-(6) is off (colour_weight 0: S_s^0 in the grid's terms)
-    "default": Resolved("inverse_square", "lms", False, 0.25, 0.5, 0.03, 0.3, "absolute", 0.5,
+    # default: S_M + Eq. (2) per block + colour propagation, tuned out of fold on DAVIS
+    # (benchmarks/tune_real.py); the cluster cue of Eqs. (1)-(6) is off (colour_weight 0: S_s^0
+    # in the grid's terms)
+    "default": Resolved("inverse_square", "lms", False, 0.25, 0.5, 0.02, 0.25, "absolute", 0.5,
                         colour_weight=0.0, block_weight=0.25, block_radius_frac=0.01,
-                        block_luminance_weight=0.5, block_fusion="add"),
+                        block_luminance_weight=0.5, block_fusion="add", colour_propagation=0.5),
     "field": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.001, 0.0, "absolute",
                       FIELD_SATURATION, luminance_weight=0.0, spread_sigma_frac=0.1,
                       contrast_level="bin", fusion="boost", dynamic_gain=FIELD_GAIN),
-    # aerial: tuned out of fold on ../shared's UAV sequences (benchmarks/tune_real.py)
+    # aerial: tuned out of fold on ../shared's UAV sequences (benchmarks/tune_real.py); with an
+    # example image of the target: unpooled colour bins, re-ranking exponent 8 (grid
+    # aerial_appearance; that run's choice on all sequences also lowered regions.peak_fraction
+    # to 0.7: appearance_peak_fraction, used only with an image)
     "aerial": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.003, 0.0, "absolute",
                        3.0, luminance_weight=0.6, spread_sigma_frac=0.1, contrast_level="bin",
                        fusion="max", dynamic_gain=2.5, colour_weight=1.0, block_weight=1.0,
                        block_radius_frac=0.0055, block_luminance_weight=0.6,
-                       ego_motion="homography"),
+                       ego_motion="homography", appearance_pool=False,
+                       appearance_rank_exponent=8.0, appearance_peak_fraction=0.7),
 }
 
 #: Each preset's ``regions`` defaults (given keys override them; regions.py has the meaning).

@@ -11,13 +11,18 @@
   "field preset"): S_s in Reinhard's l-alpha-beta (chromatic distances), Eq. (2) per colour
   bin, a spatial-compactness cue instead of the centre weighting of Eqs. (3)-(5), absolute
   scale, and Eq. (15) as ``S_s x (1 + gain x S_M)`` so the dynamic map boosts, not gates.
-- ``aerial``: real aerial video (docs/paper_choices.md, "aerial preset"): S_s adds to the field
-  colour cue Eq. (2) read per pixel block (:func:`.equations.block_contrast_cue`), S_M aligns
-  the delay units to the camera's motion (homography), Eq. (15) is ``max(S_s, gain x S_M)``,
-  and the regions use the adaptive threshold.
+- ``aerial``: real aerial video (docs/paper_choices.md, "aerial preset; real footage, round
+  2"): S_s adds to the field colour cue Eq. (2) read per pixel block
+  (:func:`.equations.block_contrast_cue`), S_M aligns the delay units to the camera's motion
+  (homography), Eq. (15) is ``max(S_s, gain x S_M)``, and the regions use the adaptive
+  threshold.
 
-An example image of the target (context ``appearance``, :mod:`eaglemission.detectors.appearance`)
-adds its colour back-projection ``A``: ``S <- A + appearance_saliency_weight x S``.
+The ``default`` preset also blends the final map with its mean per colour bin
+(``colour_propagation``, :mod:`.refine`). An example image of the target (context
+``appearance``, :mod:`eaglemission.detectors.appearance`) adds its colour back-projection ``A``:
+``S <- A + appearance_saliency_weight x S``; the regions are then re-ranked by colour histogram
+and, with ``appearance_track_weight`` > 0, the map is first attenuated away from the previous
+frame's best detection.
 
 Every preset-dependent knob is a config field whose ``None`` means "as the preset says".
 
@@ -35,21 +40,23 @@ import numpy as np
 from eaglemission.detectors.base import SaliencyDetector, validate_image
 from eaglemission.detectors.dtdmi.config import DTDMIConfig
 from eaglemission.detectors.dtdmi.engine import DTDMIEngine
+from eaglemission.detectors.dtdmi.refine import spotlit_saliency
 from eaglemission.detectors.regions import find_regions
 
 from eaglemission.types import Detection, DetectionResult, Frame, Saliency, TargetPrior
 
 
 def appearance_rerank(dets: tuple[Detection, ...], image: np.ndarray, q: np.ndarray,
-                      gamma: float, keep: int) -> tuple[Detection, ...]:
+                      gamma: float, keep: int, *, pool: bool = True) -> tuple[Detection, ...]:
     """Detections re-ranked by ``score x BC^gamma`` (BC: Bhattacharyya coefficient of the
-    region's colour histogram and the example's ``q``), the best ``keep``, that product as their
-    score (:mod:`eaglemission.detectors.appearance`)."""
+    region's colour histogram, pooled over neighbouring bins if ``pool`` as ``q`` was, and the
+    example's ``q``), the best ``keep``, that product as their score
+    (:mod:`eaglemission.detectors.appearance`)."""
     from eaglemission.detectors.appearance import bhattacharyya, region_histogram
 
     ranked = sorted(
-        ((d.score * bhattacharyya(region_histogram(image, d.corners_px), q) ** gamma, k)
-         for k, d in enumerate(dets)), reverse=True)
+        ((d.score * bhattacharyya(region_histogram(image, d.corners_px, pool=pool), q) ** gamma,
+          k) for k, d in enumerate(dets)), reverse=True)
     return tuple(replace(dets[k], score=float(s)) for s, k in ranked[:keep])
 
 
@@ -65,30 +72,53 @@ class DTDMIDetector(SaliencyDetector):
         self.engine = DTDMIEngine(self.config)
         if self.engine.numba:
             self._warm_up()
+        #: centre (u, v) of the previous frame's best detection (with an appearance image)
+        self.track_px: tuple[float, float] | None = None
         if self.appearance is not None:
             from eaglemission.detectors.appearance import AppearanceModel
 
             self.engine.set_appearance(AppearanceModel.from_image(
-                self.appearance, prior=self.config.appearance_prior))
+                self.appearance, prior=self.config.appearance_prior,
+                pool=self.engine.r.appearance_pool))
 
     def detect(self, frame: Frame, prior: TargetPrior | None = None) -> DetectionResult:
-        """Regions of the map; with an appearance image, the ``appearance_candidates`` best
-        regions are re-ranked by ``score x BC^appearance_rank_exponent`` (their colour
-        histogram against the example's, :func:`..appearance.bhattacharyya`) and
-        ``regions.max_detections`` kept, with that product as their score."""
+        """Regions of the map. With an appearance image: the map is attenuated away from the
+        previous frame's best detection (``appearance_track_weight``,
+        :func:`.refine.spotlit_saliency`), and the ``appearance_candidates`` best regions are
+        re-ranked by ``score x BC^appearance_rank_exponent`` (their colour histogram against
+        the example's, :func:`..appearance.bhattacharyya`) and ``regions.max_detections``
+        kept, with that product as their score."""
         model = self.engine.appearance
-        gamma = self.config.appearance_rank_exponent
-        if model is None or gamma == 0:
+        if model is None:
             return super().detect(frame, prior)
-        sal = self.saliency(frame)
+        sal = self.follow(self.saliency(frame), self.track_px)
         cfg = self.config.regions
-        wide = cfg.model_copy(update={
-            "max_detections": max(cfg.max_detections, self.config.appearance_candidates)})
-        dets, threshold = find_regions(sal, wide, prior, camera_id=frame.camera_id)
-        kept = appearance_rerank(dets, validate_image(frame.image), model.q, gamma,
-                                 cfg.max_detections)
+        peak = self.engine.r.appearance_peak_fraction
+        if peak is not None:
+            cfg = cfg.model_copy(update={"peak_fraction": peak})
+        gamma = self.engine.r.appearance_rank_exponent
+        if gamma > 0:
+            wide = cfg.model_copy(update={
+                "max_detections": max(cfg.max_detections, self.config.appearance_candidates)})
+            dets, threshold = find_regions(sal, wide, prior, camera_id=frame.camera_id)
+            kept = appearance_rerank(dets, validate_image(frame.image), model.q, gamma,
+                                     cfg.max_detections, pool=model.pool)
+        else:
+            kept, threshold = find_regions(sal, cfg, prior, camera_id=frame.camera_id)
+        self.track_px = kept[0].center_px if kept else None
         return DetectionResult(sal, kept, frame.timestamp_ns, frame.camera_id, frame.seq,
                                threshold)
+
+    def follow(self, sal: Saliency, track_px: tuple[float, float] | None) -> Saliency:
+        """``sal`` attenuated away from ``track_px`` (the previous best detection) by
+        ``appearance_track_weight`` (:func:`.refine.spotlit_saliency`); unchanged without a
+        previous detection or with the weight 0."""
+        weight = self.engine.r.appearance_track_weight
+        if track_px is None or weight == 0:
+            return sal
+        h, w = sal.shape
+        sigma = self.config.appearance_track_sigma_frac * float(np.hypot(h, w))
+        return spotlit_saliency(sal, track_px, sigma, weight)
 
     def _warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel now, not on the first real frame."""
@@ -100,6 +130,7 @@ class DTDMIDetector(SaliencyDetector):
 
     def _reset(self) -> None:
         self.engine.reset()
+        self.track_px = None
 
     def _saliency(self, image: np.ndarray, frame: Frame) -> Saliency:
         return self.engine.saliency(image, frame.timestamp_ns)

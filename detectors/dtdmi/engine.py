@@ -12,6 +12,7 @@ from typing import Any
 
 import cv2
 import eaglemission.detectors.dtdmi.equations_fusion as fusion
+import eaglemission.detectors.dtdmi.refine as refine
 import numpy as np
 from eaglemission.detectors.dtdmi.config import DTDMIConfig, resolve
 from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
@@ -357,6 +358,18 @@ class DTDMIEngine:
     # -- whole frame ----------------------------------------------------------------------------
     def saliency(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
         """float32 (H, W) map in [0, 1] at the resolution of ``bgr``."""
+        sal = self._map(bgr, timestamp_ns)
+        if self.r.colour_propagation > 0:
+            sal = self._propagate(sal, bgr)
+        return sal
+
+    def _propagate(self, sal: np.ndarray, bgr: np.ndarray) -> np.ndarray:
+        """:func:`propagate_by_colour` with this engine's kernels."""
+        return propagate_by_colour(sal, bgr, self.r.colour_propagation,
+                                   self._k if self.numba else None, self._paint)
+
+    def _map(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
+        """The map before the refinements of :mod:`.refine`."""
         cfg = self.cfg
         work = bgr
         if cfg.downscale > 1:
@@ -415,3 +428,32 @@ class DTDMIEngine:
             np.minimum(result, np.float32(1.0), out=result)
         else:
             result[...] = 0.0
+
+
+def propagate_by_colour(sal: np.ndarray, bgr: np.ndarray, weight: float, kernels: Any,
+                        paint: Any) -> np.ndarray:
+    """:func:`.refine.propagated_saliency`: the map blended with the mean of the map over each
+    colour bin's pixels (every 2nd row and column of the frame sampled); ``kernels``: the
+    engine's numba kernels (one fused pass), None for numpy (``paint`` fills the bins' means)."""
+    step = 2
+    img = np.ascontiguousarray(bgr)
+    if kernels is not None:
+        counts = np.zeros(NBINS, np.float64)
+        weighted = np.zeros(NBINS, np.float64)
+        wgrid = np.ascontiguousarray(sal[::step, ::step], dtype=np.float64)
+        kernels.sampled_hist(img, step, wgrid, counts, weighted)
+    else:
+        idx = quantize_bgr(img[::step, ::step]).ravel()
+        counts = np.bincount(idx, minlength=NBINS).astype(np.float64)
+        weighted = np.bincount(idx, weights=sal[::step, ::step].ravel().astype(np.float64),
+                               minlength=NBINS).astype(np.float64)
+    lut = refine.colour_mean_saliency(counts, weighted)
+    if kernels is not None:  # the same blend in one pass, in place
+        out = np.ascontiguousarray(sal, dtype=np.float32)
+        if out is sal and not out.flags.writeable:
+            out = out.copy()
+        kernels.blend_lut(img, lut, float(weight), out)
+        return out
+    painted = np.empty(sal.shape, np.float32)
+    paint(img, lut, painted)
+    return refine.propagated_saliency(sal, painted, weight)

@@ -406,6 +406,22 @@ def paint_static(bgr: U8, lut: F32, centre: F32, use_centre: bool,
     return top
 
 
+@njit(cache=True, nogil=True)
+def blend_lut(bgr: U8, lut: F32, weight: float, sal: F32) -> None:  # pragma: no cover - jitted
+    """``sal = (1 - weight) sal + weight lut[bin(bgr)]`` in place, one pass
+    (:func:`.refine.propagated_saliency` of the painted colour means)."""
+    h, w = sal.shape
+    keep = np.float32(1.0 - weight)
+    wt = np.float32(weight)
+    for r in range(h):
+        px = bgr[r]
+        srow = sal[r]
+        for c in range(w):
+            i = ((np.uint16(px[c, 0]) >> 4) << 8) | ((np.uint16(px[c, 1]) >> 4) << 4) \
+                | (np.uint16(px[c, 2]) >> 4)
+            srow[c] = keep * srow[c] + wt * lut[i]
+
+
 @njit(cache=True, nogil=True, fastmath=True)
 def _double_row(src: F32, dst: F32) -> None:  # pragma: no cover - jitted
     """``dst`` (2 n) = ``src`` (n) resized x2 bilinearly, as :func:`linear_coeffs` gives it:

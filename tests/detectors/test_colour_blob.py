@@ -59,6 +59,12 @@ def test_colour_blob_finds_the_target_colour_near_the_prediction() -> None:
     assert det.area_px == pytest.approx(cv2.contourArea(np.array(
         [[300, 200], [420, 230], [400, 300], [280, 270]], np.float32)), rel=0.15)
     assert colour_blob(img, (200, 40, 30), 0.25, (350, 250)) is None  # no blue region
+    # the region's outline (convex hull) is the quadrilateral, not its bounding rectangle
+    quad = np.array([[300, 200], [420, 230], [400, 300], [280, 270]], np.float32)
+    assert det.hull_px is not None
+    inter, _ = cv2.intersectConvexConvex(det.hull_px.astype(np.float32), quad)
+    assert inter / cv2.contourArea(quad) > 0.93
+    assert cv2.contourArea(det.hull_px.astype(np.float32)) < 1.07 * cv2.contourArea(quad)
 
 
 def _colour_blob_reference(img, target_bgr, tolerance, near_px, min_area_px=200.0, step=2,

@@ -80,6 +80,8 @@ def test_backends_agree_with_coarse_scales_upsampled_on_the_fly_or_not(scales, o
     {"preset": "field"},  # Eq. (15) as a boost, in the streamed pass
     {"preset": "field", "centre_sigma_frac": 0.25},  # boost, then the centre weight: own pass
     {"preset": "literal", "ego_motion": "phase"},
+    {"colour_propagation": 1.0},  # the map replaced by its colour means (kernels.blend_lut)
+    {"preset": "aerial", "colour_propagation": 0.5},  # the general path, then the blend
 ])
 def test_backends_agree_on_other_paths(params):
     rng = np.random.RandomState(25)

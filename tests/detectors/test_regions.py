@@ -104,6 +104,23 @@ def test_mbr_of_axis_aligned_block_lies_on_pixel_edges():
     assert d.size_px == pytest.approx((9.0, 5.0))  # pixel centres
 
 
+def test_a_region_keeps_the_convex_hull_of_its_outline():
+    """An L-shaped region: its MBR is the full 30 x 30 square, its hull cuts the empty corner
+    (the silhouette check compares that outline with the target's shape)."""
+    sal = np.zeros((60, 60), np.float32)
+    sal[10:40, 10:20] = 1.0
+    sal[30:40, 10:40] = 1.0
+    (d,), _ = find_regions(sal, RegionsConfig())
+    assert d.hull_px is not None and d.hull_px.shape[1] == 2
+    hull_area = cv2.contourArea(d.hull_px.astype(np.float32))
+    # pixels 10..39 / 10..19 / 30..39 as squares (edges 9.5..39.5): the square less the corner
+    # triangle with 20 px legs
+    assert hull_area == pytest.approx(30 * 30 - 0.5 * 20 * 20, abs=1e-6)
+    (e,), _ = find_regions(sal, RegionsConfig(mbr_pixel_edges=False))
+    assert cv2.contourArea(e.hull_px.astype(np.float32)) == pytest.approx(29 * 29 - 0.5 * 20 * 20)
+    assert d.size_px == pytest.approx((30.0, 30.0))
+
+
 @pytest.mark.parametrize("angle", [-60.0, -25.0, 0.0, 30.0, 75.0])
 def test_mbr_of_rotated_rectangle(angle):
     # area-correct rasterisation: coverage of each pixel, from an 8x supersampled drawing
