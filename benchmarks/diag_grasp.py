@@ -85,7 +85,7 @@ def main() -> None:
     from eaglemission.drivers.cameras import world as world_mod
 
     for cam_id in ("wide", "narrow"):
-        rng_c = world_mod._seed_rng(out.world.seed, "camera", cam_id)
+        rng_c = world_mod.seed_rng(sim.seed, "camera", cam_id)
         world_mod.random_rotation(sim.mount_error_deg, rng_c)
         e = rng_c.uniform(-sim.focal_error_fraction, sim.focal_error_fraction)
         print(f"true focal error {cam_id}: {e * 100:+.2f} %")

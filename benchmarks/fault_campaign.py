@@ -46,6 +46,9 @@ def main() -> int:
     ap.add_argument("--only-faults", metavar="KINDS",
                     help="of the same draws, fly only the runs whose fault is one of these "
                     "(comma-separated): after a change to those faults' path")
+    ap.add_argument("--no-imaging-effects", action="store_true",
+                    help="keep the mission file's white balance, motion blur, Bayer and JPEG "
+                    "(the worlds of the fault campaigns flown before they were drawn)")
     a = ap.parse_args()
     config = a.config
     if a.fast or a.binning > 1:
@@ -70,7 +73,8 @@ def main() -> int:
     summary = run_campaign(config, runs=a.runs, seed=a.seed, workers=a.workers,
                            out_dir=a.out, progress=True, faults=kinds, vehicle=a.vehicle,
                            only_faults=None if a.only_faults is None
-                           else set(parse_kinds(a.only_faults)))
+                           else set(parse_kinds(a.only_faults)),
+                           imaging_effects=not a.no_imaging_effects)
     wall = time.perf_counter() - t0
     print_summary(summary)
     failed = print_fault_table(summary.runs)

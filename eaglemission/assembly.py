@@ -127,6 +127,14 @@ class PoseSource:
         st = self._vehicle.state_at(timestamp_ns)
         return None if st is None else (st.position_ned_m, st.attitude_q)
 
+    def motion_at(self, timestamp_ns: int) -> tuple[XYZ, XYZ] | None:
+        """True velocity (NED, m/s) and angular velocity (NED, rad/s) at a time, when the
+        truth offers them (the simulated vehicle's does); None otherwise (a synthetic camera
+        then differences two poses for its motion blur)."""
+        fn = getattr(self.truth, "motion_at", None)
+        motion: tuple[XYZ, XYZ] | None = fn(timestamp_ns) if callable(fn) else None
+        return motion
+
 
 @dataclass
 class Assembly:

@@ -40,6 +40,7 @@ class DriverError(EagleMissionError):
         self.result = result
         self.origin = origin
         self.params = params
+        self.detail = detail
         text = f"{origin} failed: {result}"
         if params not in (None, (), {}):
             text += f" (args: {params!r})"

@@ -132,6 +132,26 @@ def quat_slerp(q0: Sequence[float], q1: Sequence[float], alpha: float) -> Quat:
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
+def rotation_vector(R: Mat3) -> NDArray[np.float64]:
+    """The rotation vector (axis x angle, rad) of a rotation matrix (angle < pi)."""
+    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = float(np.linalg.norm(w))
+    angle = math.atan2(s, 0.5 * (float(np.trace(R)) - 1.0))
+    return np.asarray(w * (angle / s) if s > 1e-12 else w, dtype=np.float64)
+
+
+def rotation_from_vector(rotvec: Sequence[float] | NDArray[np.float64]) -> Mat3:
+    """The rotation matrix of a rotation vector (axis x angle, rad): Rodrigues' formula."""
+    r = np.asarray(rotvec, dtype=np.float64)
+    angle = float(np.linalg.norm(r))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = r / angle
+    Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.asarray(np.eye(3) + math.sin(angle) * Kx + (1.0 - math.cos(angle)) * Kx @ Kx,
+                      dtype=np.float64)
+
+
 def wrap_deg(angle_deg: float) -> float:
     """Wrap an angle to [-180, 180)."""
     return (angle_deg + 180.0) % 360.0 - 180.0

@@ -89,6 +89,8 @@ class Detection:
 
     ``corners_px`` is (4, 2) float64 ``(u, v)``, clockwise on screen from the top-left corner
     (the corner with the smallest ``u + v``); ``size_px`` is (long side, short side).
+    ``hull_px``, when the detector kept it, is the convex hull of the region's outline, (N, 2)
+    float64 ``(u, v)``: its shape beyond the MBR (the silhouette check, docs/mission.md).
     """
 
     score: float
@@ -98,12 +100,18 @@ class Detection:
     angle_deg: float
     area_px: float
     camera_id: str = ""
+    hull_px: Points2 | None = None
 
     def __post_init__(self) -> None:
         c = np.asarray(self.corners_px, dtype=np.float64)
         if c.shape != (4, 2):
             raise ValueError(f"Detection.corners_px: must be (4, 2), got {c.shape}")
         object.__setattr__(self, "corners_px", _readonly(c.copy()))
+        if self.hull_px is not None:
+            h = np.asarray(self.hull_px, dtype=np.float64).reshape(-1, 2)
+            if len(h) < 3:
+                raise ValueError(f"Detection.hull_px: needs at least 3 points, got {len(h)}")
+            object.__setattr__(self, "hull_px", _readonly(h.copy()))
 
     @property
     def aspect_ratio(self) -> float:
@@ -195,13 +203,19 @@ class PlaneFit:
     (:class:`~eaglemission.interfaces.fitter.PlaneFitter`): the top-face centre in NED, the
     region model that explained the detection (``"top"`` face or whole ``"box"`` silhouette),
     the target heading tried (deg, 0-180), the MBR side-length mismatch (sum of |log ratio|)
-    and the detection-to-model size ratio (> 1: the detection is larger)."""
+    and the detection-to-model size ratio (> 1: the detection is larger).
+    ``silhouette_iou``: for a detection with its outline's hull, seen whole, how well the
+    target's own shape explains that outline (the best IoU over headings and region models,
+    :func:`~eaglemission.estimators.top_plane.silhouette_iou`) and the heading (deg, 0-180) that
+    fits the outline best (``silhouette_yaw_deg``); None when not measured."""
 
     position_ned_m: XYZ
     region: str
     yaw_deg: float
     cost: float
     size_ratio: float
+    silhouette_iou: float | None = None
+    silhouette_yaw_deg: float | None = None
 
 
 # ---------------------------------------------------------------------------------------------

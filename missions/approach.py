@@ -233,6 +233,9 @@ class Snapshot:
     goal_inside_geofence: bool = True
     camera_failed: bool = False
     pilot_override: bool = False
+    watchdog_hold: str = ""
+    """The driver's offboard watchdog commanded HOLD (the mission's setpoints stalled, e.g. the
+    companion computer starved of CPU): what it said, "" if it did not."""
     autopilot_failover: str = ""
     """The autopilot acted on its own while the link was down (the vehicle's ``failover``
     event, e.g. PX4's offboard loss): what it did, "" if nothing."""
@@ -344,7 +347,7 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
     """The failsafe that applies in ``state`` (pure; first match in priority order).
 
     Priority: the operator's interrupt, link loss, autopilot failover, GPS loss, low battery,
-    pilot mode change, camera failure, geofence, refused command, a rejected candidate (when
+    the offboard watchdog's own HOLD, pilot mode change, camera failure, geofence, refused command, a rejected candidate (when
     ``on_target_lost`` is not ``resume_cruise``), state timeout, route end without target. On the ground (PREFLIGHT) the
     action is ``none``: the vehicle is never armed.
     """
@@ -366,6 +369,9 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
         return Abort("GPS lost", act(safety.gps_loss_action))
     if s.battery_remaining < s.low_battery_fraction:
         return Abort(f"battery low ({s.battery_remaining:.0%})", act(safety.low_battery_action))
+    if s.watchdog_hold and not on_ground:  # our own HOLD, not a pilot's: no one flies it
+        return Abort(f"offboard watchdog commanded HOLD: {s.watchdog_hold}",
+                     act(params.timeout_action))
     if s.pilot_override:
         return Abort("flight mode changed by the pilot or the autopilot: stop commanding",
                      "release")

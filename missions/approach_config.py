@@ -112,6 +112,20 @@ class ApproachConfig(BaseModel):
         "\"candidate rejection\"; not in the paper)")
     heading_min_views: int = Field(12, ge=2, description="complete close-range views before "
                                    "heading_min_consistency is judged")
+    silhouette_min_iou: float | None = Field(
+        0.86, gt=0, lt=1, description="the candidate's outlines must fit the target's shape: "
+        "below this median IoU of its complete close-range views (outline at least 30 px "
+        "across) with the target's projected top face or box (best heading) the candidate is "
+        "rejected as not the target (a box of its colour and top area but another shape; needs "
+        "target.color_bgr: the outline is the colour region's; null disables it; "
+        "docs/mission.md, \"candidate rejection by shape\"; not in the paper)")
+    silhouette_min_views: int = Field(8, ge=1, description="complete close-range views "
+                                      "before silhouette_min_iou is judged")
+    silhouette_heading_min_iou: float = Field(
+        0.86, gt=0, le=1, description="a complete close view whose colour outline fits the "
+        "target at least this well gives the heading the views cut by the image border are "
+        "fitted around (the outline's heading, within a few degrees; else the plane fit's on "
+        "its 15 deg grid; docs/mission.md; not in the paper)")
     takeoff_tolerance_m: float = Field(0.3, gt=0)
     min_telemetry_hz: float = Field(10.0, gt=0)
     vertical_reference: Literal["ground", "estimate", "hybrid"] = Field(

@@ -3,7 +3,10 @@
 Each run draws, from ``np.random.RandomState(seed + run)``: target position (along the route,
 +-3 m across it) and heading, ground texture, 0-2 distractors, lighting gain, wind (0-3 m/s, any
 direction), camera mount error (up to 2 deg, drawn by the world per camera), focal error (up
-to 3%), camera-to-telemetry offset (0-40 ms) and the world seed. Runs are independent processes
+to 3%), camera-to-telemetry offset (0-40 ms) and the world seed; then, from an RNG of that
+seed, the imaging effects (motion blur and BayerRG demosaicing on, a white-balance error, JPEG
+in half the runs; ``--no-imaging-effects`` leaves them as the mission file has them). Runs are
+independent processes
 (``--workers``, default 2) of a local pool or Ray tasks (``--executor ray``,
 :mod:`~eaglemission.missions.campaign_executors`); the evaluator judges every run against the
 truth. ``--out DIR`` keeps each finished run there and resumes from it.
@@ -30,16 +33,23 @@ from eaglemission.config import MissionFile, load_config
 
 
 def randomise(cfg: MissionFile, rng: np.random.RandomState,
-              ground_images: list[Path] | None = None) -> MissionFile:
+              ground_images: list[Path] | None = None, *,
+              imaging_effects: bool = True) -> MissionFile:
     """A copy of ``cfg`` with a randomised simulated world (pure given the RNG state): the
     world plugin draws the variant (``World.randomised_params``). With ``ground_images`` the
     run's ground is one of them, drawn (with its offset from home) from an RNG of the drawn
-    world seed, so the other draws stay those of a campaign without photos."""
+    world seed, so the other draws stay those of a campaign without photos.
+    ``imaging_effects=False`` keeps ``cfg``'s values of the keys the world lists in
+    ``imaging_keys`` (the synthetic world: white balance, motion blur, Bayer, JPEG): the
+    worlds of the campaigns flown before those effects were drawn."""
     world = build_world(cfg)
     if world is None or cfg.world is None:
         raise ValueError("world: the campaign needs a simulated world (`world:` section)")
     route = [(w.north_m, w.east_m) for w in cfg.mission.route]
     params = world.randomised_params(rng, route)
+    if not imaging_effects:
+        base = world.config.model_dump()
+        params.update({k: base[k] for k in getattr(world, "imaging_keys", ()) if k in base})
     if ground_images:
         g = np.random.RandomState(int(params.get("seed", 0)) ^ 0x9E3779B9)
         image = ground_images[int(g.randint(0, len(ground_images)))]
@@ -126,7 +136,8 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                  faults: list[str] | None = None,
                  ground_images: list[Path] | None = None,
                  vehicle: str = "simulated",
-                 only_faults: set[str] | None = None) -> CampaignSummary:
+                 only_faults: set[str] | None = None,
+                 imaging_effects: bool = True) -> CampaignSummary:
     """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
     :class:`~eaglemission.missions.campaign_executors.Executor`); with ``out_dir`` each finished
     run is stored there and a rerun flies only the missing ones
@@ -134,7 +145,8 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
     (:mod:`.campaign_faults`). ``ground_images``: each run's ground is one of these photos.
     ``vehicle``: ``simulated`` (virtual time) or ``emulator`` (real time through MAVSDK,
     :mod:`.campaign_emulator`). ``only_faults``: fly only the runs whose drawn fault is one of
-    these (the same draws: the runs a change to those faults' path can alter)."""
+    these (the same draws: the runs a change to those faults' path can alter).
+    ``imaging_effects=False``: the worlds without the drawn imaging effects (:func:`randomise`)."""
     if vehicle not in VEHICLES:
         raise ValueError(f"vehicle: {vehicle!r} is not one of {', '.join(VEHICLES)}")
     base = load_config(config)
@@ -142,7 +154,7 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
     jobs = []
     for i in range(runs):
         cfg = randomise(base, np.random.RandomState(int(rng.randint(0, 2**31 - 1))),
-                        ground_images)
+                        ground_images, imaging_effects=imaging_effects)
         if faults:
             cfg = with_drawn_fault(cfg, i, faults, seed)
         if only_faults is not None and not (

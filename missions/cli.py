@@ -34,6 +34,10 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", choices=("simulated", "emulator"), default="simulated",
                    help="simulated: virtual time; emulator: each run in real time through "
                    "MAVSDK against its own `sitl-vehicle` process, link faults on its UDP path")
+    p.add_argument("--no-imaging-effects", action="store_true",
+                   help="keep the mission file's white balance, motion blur, Bayer and JPEG "
+                   "settings instead of drawing them (the worlds of campaigns flown before "
+                   "they were drawn)")
 
 
 @contextmanager
@@ -95,7 +99,8 @@ def _campaign(args: argparse.Namespace) -> int:
             summary = run_campaign(args.config, runs=args.runs, seed=args.seed,
                                    workers=args.workers, out_dir=args.out, progress=True,
                                    executor=args.executor, address=args.address, faults=kinds,
-                                   ground_images=ground_images, vehicle=args.vehicle)
+                                   ground_images=ground_images, vehicle=args.vehicle,
+                                   imaging_effects=not args.no_imaging_effects)
     except KeyboardInterrupt:
         return _interrupted(args.out)
     except (CampaignExecutorError, CampaignResumeError) as exc:

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.target_state import (
@@ -54,10 +55,37 @@ class Provenance(enum.Enum):
 
 @dataclass(frozen=True, slots=True)
 class FitHint:
-    """Heading and region model of the last complete close view: they constrain cut views."""
+    """Heading and region model of the last complete close view: they constrain cut views
+    (the heading is the colour outline's when it fits the target, ``silhouette_yaw_deg``, else
+    the plane fit's).
+    ``silhouette_iou``: how well the target's shape explains that view's region outline
+    (:attr:`~eaglemission.types.PlaneFit.silhouette_iou`), for the shape check."""
 
     yaw_deg: float
     region: str
+    silhouette_iou: float | None = None
+    silhouette_yaw_deg: float | None = None
+
+
+def colour_outline(det: Detection, frame: Frame, tracker: Tracker | None, tracked: bool
+                   ) -> NDArray[np.float64] | None:
+    """The outline the shape check compares with the target's (``silhouette_iou``): that of the
+    target colour's region, the whole silhouette (the top and the shaded sides share its
+    chromaticity), not the detector's region (a saliency threshold may cut a shaded face:
+    measured, true targets' outlines then fit at IoU ~0.7); the colour region must be the
+    detection's object (its centre inside the detection's MBR). None without a colour
+    tracker (the check is then not made)."""
+    if tracker is None or not tracker.available:
+        return None
+    col = det if tracked else tracker.track(frame, det.center_px)
+    if col is None or col.hull_px is None:
+        return None
+    mbr = np.asarray(det.corners_px, dtype=np.float32)
+    if cv2.pointPolygonTest(mbr, (float(col.center_px[0]), float(col.center_px[1])),
+                            False) < 0:
+        return None
+    hull: NDArray[np.float64] = np.asarray(col.hull_px, dtype=np.float64)
+    return hull
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,10 +310,10 @@ class Perception:
         assert isinstance(est, TargetEstimate)
         if not (self.p.plane_fit and tools.fitter is not None):
             return est, prov, False, None, None, None
-        return self._refine(est, prov, det, view, req, tools.fitter, tracked)
+        return self._refine(est, prov, det, view, req, tools.fitter, tracked, tools.tracker)
 
     def _refine(self, est: TargetEstimate, prov: Provenance, det: Detection, view: CameraView,
-                req: Request, fitter: PlaneFitter, tracked: bool
+                req: Request, fitter: PlaneFitter, tracked: bool, tracker: Tracker | None = None
                 ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,
                            FitHint | None, PlaneMeasurement | None]:
         """Replace the estimate's position by the top-plane fit of its detection (top face or
@@ -309,11 +337,21 @@ class Perception:
             # target's chromaticity (not the detector's region of the earlier views)
             region_hint = "box"
         plane_ground = plane_down_m(0.0, req.plane, p.plane_offset)
-        fit = fitter.fit(det, view, plane_down_m=plane_ground, yaw_hint_deg=yaw_hint,
-                         region_hint=region_hint, iterations=8 if cut else 4)
+        whole = req.close_range and not cut
+        outline = colour_outline(det, req.frame, tracker, tracked) if whole else None
+        fit = fitter.fit(det if outline is None else replace(det, hull_px=outline), view,
+                         plane_down_m=plane_ground, yaw_hint_deg=yaw_hint,
+                         region_hint=region_hint, iterations=8 if cut else 4,
+                         silhouette=outline is not None)
         new_hint = None
         if fit is not None and not cut and fit.cost <= p.plane_fit_max_cost and req.close_range:
-            new_hint = FitHint(fit.yaw_deg, fit.region)
+            # the heading for the cut views to come: the outline's when it fits the target
+            # (within a few degrees; the MBR fit's, on a 15 deg grid, mirrors now and then)
+            yaw = fit.yaw_deg
+            if (fit.silhouette_yaw_deg is not None and fit.silhouette_iou is not None
+                    and fit.silhouette_iou >= p.silhouette_heading_min_iou):
+                yaw = fit.silhouette_yaw_deg
+            new_hint = FitHint(yaw, fit.region, fit.silhouette_iou, fit.silhouette_yaw_deg)
         if fit is None or fit.cost > p.plane_fit_max_cost:
             if req.close_range:
                 why = "no fit" if fit is None else f"MBR mismatch {fit.cost:.2f}"

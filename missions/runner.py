@@ -124,6 +124,7 @@ class MissionRunner:
                                  grasp_callback, guard=autopilot_guard)
         self.actuator.on_grasp_done = self._wake_machine_now
         self._interrupt: tuple[str, FinalAction] | None = None
+        self._watchdog_hold = ""
         self._stopping = False
         self._wake_setpoint = asyncio.Event()
         self._wake_machine = asyncio.Event()
@@ -368,7 +369,8 @@ class MissionRunner:
             battery_remaining=vs.battery_remaining,
             low_battery_fraction=self.cfg.safety.low_battery_fraction,
             goal_inside_geofence=self._goal_ok, camera_failed=camera_failed,
-            pilot_override=pilot, autopilot_failover=self.telemetry.failover, command_failed=act.command_failed,
+            pilot_override=pilot, watchdog_hold=self._watchdog_hold,
+            autopilot_failover=self.telemetry.failover, command_failed=act.command_failed,
             interrupt_reason=self._interrupt[0] if self._interrupt else "",
             interrupt_action=self._interrupt[1] if self._interrupt else "return")
 
@@ -411,6 +413,15 @@ class MissionRunner:
                 await asyncio.wait_for(self.vehicle.set_setpoint(sp),
                                        timeout=self.p.timeouts.command_s)
             except (errors.DriverError, TimeoutError) as exc:  # VehicleError, TimeoutError_
+                if getattr(exc, "result", "") == "WATCHDOG_HOLD":
+                    if not self._watchdog_hold:  # once: every later setpoint is refused too
+                        detail = getattr(exc, "detail", "") or str(exc)
+                        self._watchdog_hold = detail.split(":")[0]
+                        self.log.write("fault_detected", what="offboard_watchdog",
+                                       text=str(exc), response=f"{self.p.timeout_action}",
+                                       state=self.machine.state.value)
+                        self._wake_machine.set()
+                    continue
                 self.log.write("event", source="setpoint", text=f"setpoint refused: {exc}")
                 continue
             latency = None

@@ -9,6 +9,7 @@ and the current state's policy; what it may do in that state is the policy's dat
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass
 
 from eaglemission.missions import guidance as gd
@@ -87,6 +88,8 @@ class TargetTracking:
         """Places of candidates whose fitted heading disagrees across views (the reason)."""
         self.headings_deg: list[float] = []
         """Fitted headings of the tracked candidate's complete close-range views."""
+        self.silhouettes: list[float] = []
+        """Their silhouette IoUs (:func:`~eaglemission.estimators.top_plane.silhouette_iou`)."""
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -103,6 +106,7 @@ class TargetTracking:
         self.grasp_window = []
         self.fit_hint = None
         self.headings_deg = []
+        self.silhouettes = []
 
     def count_loss(self) -> tuple[float, float] | None:
         """The target was lost: count it at the place it was last tracked (losses within
@@ -110,6 +114,7 @@ class TargetTracking:
         log it. The ``max_target_losses``-th loss at a place rejects it (``just_rejected``).
         Returns the place, None when the target was never tracked."""
         self.headings_deg = []
+        self.silhouettes = []
         if self.last_target is None:
             self.last_place = None
             return None
@@ -141,7 +146,7 @@ class TargetTracking:
     @property
     def just_rejected(self) -> bool:
         """The latest loss was at a rejected place: the ``max_target_losses``-th there, or at
-        a candidate of the wrong shape (:meth:`check_heading`)."""
+        a candidate of the wrong shape (:meth:`check_shape`)."""
         return self.last_place is not None and self._rejects(self.last_place)
 
     @property
@@ -158,30 +163,50 @@ class TargetTracking:
         return any(math.dist(q, position_ned_m[:2]) <= radius and self._rejects(q)
                    for q in self.losses)
 
-    def check_heading(self, yaw_deg: float, position_ned_m: XYZ, camera: str = "") -> None:
-        """One complete view's fitted heading of the candidate tracked in the fine approach.
-        Once ``heading_min_views`` are in, an elongated target's headings must agree
-        (:func:`heading_consistency` at least ``heading_min_consistency``): a candidate of
-        another shape (a square box of the target's colour and area fits at whatever heading
-        makes its perspective match) is rejected at its place and its track dropped; the loss
-        that follows applies ``on_target_lost`` at once. Each view is logged (``heading``),
-        the check on or off."""
+    def check_shape(self, yaw_deg: float, position_ned_m: XYZ, camera: str = "",
+                    silhouette_iou: float | None = None,
+                    silhouette_yaw_deg: float | None = None) -> None:
+        """One complete close-range view of the candidate tracked in the fine approach: its
+        fitted heading and how well the target's shape explains its region's outline
+        (``silhouette_iou``). The candidate is rejected at its place, and its track dropped,
+        when the median silhouette IoU of its views falls below ``silhouette_min_iou`` once
+        ``silhouette_min_views`` are in, or (an elongated target, opt-in) its fitted headings
+        disagree (:func:`heading_consistency` below ``heading_min_consistency`` after
+        ``heading_min_views``): a box of the target's colour and top area but another shape.
+        The loss that follows applies ``on_target_lost`` at once. Each view is logged
+        (``heading``), the checks on or off."""
         t, p = self.cfg.target, self.p
-        if t.length_m < ELONGATED * t.width_m:
-            return
         self.headings_deg.append(yaw_deg)
+        if silhouette_iou is not None:
+            self.silhouettes.append(silhouette_iou)
         n = len(self.headings_deg)
-        r = heading_consistency(self.headings_deg) if n >= p.heading_min_views else None
+        elongated = t.length_m >= ELONGATED * t.width_m
+        r = heading_consistency(self.headings_deg) \
+            if elongated and n >= p.heading_min_views else None
+        iou = statistics.median(self.silhouettes) \
+            if len(self.silhouettes) >= p.silhouette_min_views else None
         self.log.write("heading", camera=camera, yaw_deg=round(yaw_deg, 1), views=n,
-                       consistency=None if r is None else round(r, 4))
-        if r is None or r >= p.heading_min_consistency:
+                       consistency=None if r is None else round(r, 4),
+                       silhouette_iou=None if silhouette_iou is None
+                       else round(silhouette_iou, 4),
+                       silhouette_yaw_deg=None if silhouette_yaw_deg is None
+                       else round(silhouette_yaw_deg, 1),
+                       median_iou=None if iou is None else round(iou, 4))
+        if iou is not None and p.silhouette_min_iou is not None and iou < p.silhouette_min_iou:
+            why = (f"its outline does not fit the target's shape (median silhouette IoU "
+                   f"{iou:.2f} over {len(self.silhouettes)} views < silhouette_min_iou="
+                   f"{p.silhouette_min_iou:g})")
+        elif r is not None and r < p.heading_min_consistency:
+            why = (f"fitted heading inconsistent over {n} views (consistency {r:.2f} < "
+                   f"heading_min_consistency={p.heading_min_consistency:g}): not the "
+                   f"target's shape")
+        else:
             return
         place = self._place_of(position_ned_m)
         self.losses.setdefault(place, 0)
-        why = (f"fitted heading inconsistent over {n} views (consistency {r:.2f} < "
-               f"heading_min_consistency={p.heading_min_consistency:g}): not the target's shape")
         self.misshapen[place] = why
         self.headings_deg = []
+        self.silhouettes = []
         self.filter.reset()
         self.log.write("event", source="mission",
                        text=f"candidate near north {place[0]:.1f} m east {place[1]:.1f} m "
@@ -267,7 +292,8 @@ class TargetTracking:
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
             if accepted and meas.fit_hint is not None and pol.camera_choice == "fine":
-                self.check_heading(meas.fit_hint.yaw_deg, pos, cam_id)
+                self.check_shape(meas.fit_hint.yaw_deg, pos, cam_id,
+                                 meas.fit_hint.silhouette_iou, meas.fit_hint.silhouette_yaw_deg)
             fresh = accepted
         filt = self.filter.state(frame.timestamp_ns)
         switched = None

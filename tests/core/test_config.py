@@ -342,6 +342,7 @@ def test_validate_cli_refuses_a_resolution_that_disagrees_with_the_calibration(
     for cid in ("wide", "narrow"):
         data["cameras"][cid]["calibration_file"] = str(
             REPO / "configs" / data["cameras"][cid]["calibration_file"])
+    data["target"]["appearance_image"] = str(REPO / "configs" / data["target"]["appearance_image"])
     data["cameras"]["narrow"]["resolution_px"] = [800, 600]
     f = tmp_path / "m.yaml"
     f.write_text(yaml.safe_dump(data))

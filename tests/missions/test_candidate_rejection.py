@@ -129,9 +129,9 @@ def test_a_candidate_whose_heading_wanders_is_rejected_and_its_track_dropped() -
     t.filter.update((37.9, -3.3, -0.2), 0.1, 1)
     t.last_target = (37.9, -3.3, -0.2)
     for yaw in (135.0, 135.0, 140.0):
-        t.check_heading(yaw, (37.9, -3.3, -0.2))
+        t.check_shape(yaw, (37.9, -3.3, -0.2))
     assert not t.misshapen and t.filter.state(1) is not None
-    t.check_heading(45.0, (37.9, -3.3, -0.2))  # 4 views: consistency 0.48
+    t.check_shape(45.0, (37.9, -3.3, -0.2))  # 4 views: consistency 0.48
     assert list(t.misshapen) == [(37.9, -3.3)] and "not the target's shape" in \
         t.misshapen[(37.9, -3.3)]
     assert t.filter.state(1) is None and t.is_rejected((38.5, -3.0, 0.0))
@@ -141,7 +141,7 @@ def test_a_candidate_whose_heading_wanders_is_rejected_and_its_track_dropped() -
 def test_the_heading_check_is_off_by_default_and_for_a_square_target() -> None:
     t = _tracking(heading_min_views=2)
     for yaw in (0.0, 90.0, 0.0, 90.0):
-        t.check_heading(yaw, (1.0, 1.0, 0.0))
+        t.check_shape(yaw, (1.0, 1.0, 0.0))
     assert not t.misshapen
     cfg = load_config(check_plugins=False)
     square = variant(cfg, target={**cfg.target.model_dump(), "length_m": 0.3, "width_m": 0.3},
@@ -151,8 +151,41 @@ def test_the_heading_check_is_off_by_default_and_for_a_square_target() -> None:
     s = TargetTracking(square, ApproachConfig.of(square), models,
                        MissionLog(None, now_ns=lambda: 0))
     for yaw in (0.0, 90.0, 0.0, 90.0):
-        s.check_heading(yaw, (1.0, 1.0, 0.0))
+        s.check_shape(yaw, (1.0, 1.0, 0.0))
     assert not s.misshapen
+
+
+def test_a_candidate_whose_outline_is_not_the_targets_shape_is_rejected() -> None:
+    t = _tracking(silhouette_min_iou=0.9, silhouette_min_views=4)
+    t.filter.update((37.8, -3.2, -0.2), 0.1, 1)
+    t.last_target = (37.8, -3.2, -0.2)
+    for iou in (0.81, 0.80, 0.97):  # 3 views: not judged yet
+        t.check_shape(0.0, (37.8, -3.2, -0.2), "narrow", iou)
+    assert not t.misshapen
+    t.check_shape(0.0, (37.8, -3.2, -0.2), "narrow", 0.79)  # median 0.805 < 0.9
+    assert list(t.misshapen) == [(37.8, -3.2)]
+    assert "silhouette IoU 0.81 over 4 views" in t.misshapen[(37.8, -3.2)]
+    assert t.filter.state(1) is None and t.is_rejected((38.0, -3.0, 0.0))
+    assert t.count_loss() == (37.8, -3.2) and t.just_rejected
+
+
+def test_the_target_keeps_its_track_through_a_few_poor_outlines() -> None:
+    t = _tracking(silhouette_min_iou=0.9, silhouette_min_views=4)
+    t.filter.update((22.0, 1.5, -0.2), 0.1, 1)
+    for iou in (0.97, 0.6, 0.98, 0.96, 0.55, 0.99, 0.97):  # a merged blob now and then
+        t.check_shape(20.0, (22.0, 1.5, -0.2), "wide", iou)
+    t.check_shape(20.0, (22.0, 1.5, -0.2), "wide", None)  # a view without an outline
+    assert not t.misshapen and t.filter.state(1) is not None
+    assert len(t.silhouettes) == 7 and len(t.headings_deg) == 8
+
+
+def test_the_silhouette_check_is_on_by_default_and_can_be_turned_off() -> None:
+    t = _tracking()
+    assert t.p.silhouette_min_iou == 0.86 and t.p.silhouette_min_views == 8
+    off = _tracking(silhouette_min_iou=None, silhouette_min_views=1)
+    for _ in range(10):
+        off.check_shape(0.0, (1.0, 1.0, 0.0), "narrow", 0.5)
+    assert not off.misshapen
 
 
 def test_a_granted_pass_flies_back_to_the_route_start_before_the_route_ends() -> None:
@@ -179,8 +212,6 @@ def run_521() -> MissionFile:
     approach): the target at N 28.0 m is seen once in cruise, unconfirmed; a red box 0.32 m
     square (the target's colour and top area, 0.40 x 0.25 m) at N 37.8 m is confirmed, and
     every plane fit explains it, each at another heading."""
-    mission = load_config(check_plugins=False).model_dump(mode="json")["mission"]
-    mission["params"] = {**mission["params"], "heading_min_consistency": 0.6}
     return campaign_world({
         "seed": 1505987167, "target_north_m": 28.017, "target_east_m": 2.349,
         "target_yaw_deg": -74.82, "ground_texture": "soil", "light_gain": 0.722,
@@ -192,20 +223,23 @@ def run_521() -> MissionFile:
             {"kind": "disc", "north_m": 23.219, "east_m": -2.767, "size_m": 0.588,
              "height_m": 0.111, "color_bgr": [226, 195, 66]}]},
         faults={"inject": [{"kind": "command_denied", "at_state": "COARSE_APPROACH",
-                            "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]},
-        mission=mission)
+                            "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]})
 
 
 def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_again(
         run_521: MissionFile, tmp_path: Path) -> None:
+    """With the default silhouette check: the box's outlines fit the target's shape at IoU
+    0.7-0.8 (the target's own at 0.9-1), so it is rejected after 8 views; the route is flown
+    again and the target grasped (before the check: GRASP_READY on the box, 11.2 m away)."""
     out = run_simulation(run_521, log_path=tmp_path / "run.jsonl")
     ev = out.evaluation
     texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
-    assert any("rejected: fitted heading inconsistent" in t and "north 37." in t
+    assert any("does not fit the target's shape" in t and "north 38." in t
                for t in texts), texts
     assert any("searched again from its start" in t for t in texts), texts
-    heads = [h for h in out.log.of_kind("heading") if h["consistency"] is not None]
-    assert heads and min(h["consistency"] for h in heads) < 0.6 <= heads[0]["consistency"]
+    ious = [h["silhouette_iou"] for h in out.log.of_kind("heading")
+            if h["silhouette_iou"] is not None]
+    assert ious and min(ious) > 0.5
     assert ev.reached_grasp_ready and ev.final_state == "DONE", ev.explanation
     assert ev.horizontal_error_m is not None and ev.horizontal_error_m < 0.05
     assert not ev.violations

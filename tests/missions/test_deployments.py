@@ -213,6 +213,7 @@ def test_field_path_on_the_gentl_test_producer_and_the_emulator(tmp_path: Path) 
     # the target is a red box; viky's test pattern is a 20 px green or blue square on white:
     # no target in view, so the route is flown to its end
     data["target"]["color_bgr"] = [30, 40, 210]
+    data["target"]["appearance_image"] = str(REPO / "configs" / data["target"]["appearance_image"])
     for cid, dev, fx in (("wide", "VikyTL_DEV_green", 747.0), ("narrow", "VikyTL_DEV_blue",
                                                                  3200.0)):
         cam = data["cameras"][cid]
