@@ -71,12 +71,27 @@ class DetectorSpec:
         return self.label.partition("@")[2] or None
 
 
+def preset_names(name: str) -> tuple[str, ...]:
+    """The values a detector plugin's ``preset`` param takes (a ``Literal``), or ()."""
+    import typing
+
+    try:
+        cls = registry.get("detectors", name)
+    except EagleMissionError:
+        return ()
+    preset = getattr(cls.Config, "model_fields", {}).get("preset")
+    args = typing.get_args(preset.annotation) if preset is not None else ()
+    return tuple(a for a in args if isinstance(a, str))
+
+
 def parse_detector_specs(detectors: str, params: Sequence[str]) -> list[DetectorSpec]:
     """``--detectors a,b@v`` and ``--params SPEC:k=v`` -> specs.
 
     ``name:k=v`` applies to every variant of ``name``; ``name@v:k=v`` to that variant only (and
-    wins). A variant with no params of its own sets ``preset: v`` when the plugin's Config has a
-    ``preset`` field (``dtdmi@literal`` -> ``preset=literal``).
+    wins). A variant named after one of the plugin's presets sets ``preset: v`` unless its params
+    set ``preset`` (``dtdmi@field`` with ``dtdmi@field:downscale=2`` is the field preset at
+    downscale 2); any other variant with no params of its own sets ``preset: v`` too (the
+    plugin's config then names an unknown preset), one with params of its own is a custom label.
     """
     labels = [s.strip() for s in detectors.split(",") if s.strip()]
     if not labels:
@@ -100,7 +115,9 @@ def parse_detector_specs(detectors: str, params: Sequence[str]) -> list[Detector
         if not name:
             raise UsageError(f"--detectors: {label!r} has no plugin name before '@'")
         p = deep_merge(parse_kv(per_name.get(name, [])), parse_kv(per_label.get(label, [])))
-        if variant and label not in per_label:
+        if variant and "preset" not in p and variant in preset_names(name):
+            p = deep_merge(p, {"preset": variant})
+        elif variant and label not in per_label:
             cls = registry.get("detectors", name)
             if "preset" not in getattr(cls.Config, "model_fields", {}):
                 raise UsageError(

@@ -79,6 +79,13 @@ def test_parse_detector_specs():
     assert specs[0].params == {"scales": [1, 2]}
     assert specs[1].params == {"scales": [1, 2], "preset": "literal"}  # preset from the label
     assert specs[2].params == {"regions": {"threshold": "otsu"}}
+    # a variant named after a preset keeps it beside params of its own; others are labels
+    field, custom = parse_detector_specs("dtdmi@field,dtdmi@mine", [
+        "dtdmi@field:downscale=2", "dtdmi@mine:downscale=2"])
+    assert field.params == {"downscale": 2, "preset": "field"}
+    assert custom.params == {"downscale": 2}
+    (other,) = parse_detector_specs("dtdmi@field", ["dtdmi@field:preset=aerial"])
+    assert other.params == {"preset": "aerial"}
     with pytest.raises(UsageError, match="no `preset` param"):
         parse_detector_specs("ft@x", [])
     with pytest.raises(UsageError, match="not in --detectors"):
