@@ -120,12 +120,15 @@ def grid_aerial_appearance() -> list[dict[str, Any]]:
     and the re-ranking histograms), following the previous best detection (weight 0: off; the
     Gaussian's sigma fixed at 0.1 of the diagonal), the re-ranking exponent; regions: peak
     fraction. The back-projection's prior and the saliency's weight stay at the config's
-    defaults (0.1, 0.25: round 1's choice in four folds of five)."""
+    defaults (0.1, 0.25: round 1's choice in four folds of five). The regions' floor is fixed
+    beforehand at the preset's ``appearance_floor`` (30: the lowest of 20, 30, 40, ... that
+    keeps the target-free garfield_park photos under 0.05 detections per frame;
+    docs/detectors.md, "On real ground photos")."""
     out = []
     for pool, track, gamma in itertools.product((True, False), (0.0, 0.3), (4.0, 8.0)):
         params = {"preset": "aerial", "appearance_pool": pool,
                   "appearance_track_weight": track, "appearance_rank_exponent": gamma}
-        regions = [{"peak_fraction": pf} for pf in (0.7, 0.8)]
+        regions = [{"peak_fraction": pf, "adaptive_floor": 30} for pf in (0.7, 0.8)]
         out.append({"params": params, "regions": regions})
     return out
 
@@ -391,15 +394,17 @@ def run_full(kind: str, name: str, params: dict[str, Any], seq: Seq, use_image: 
 def merged_params(point: dict[str, Any], regions: dict[str, Any],
                   use_image: bool = False) -> dict[str, Any]:
     """A grid point's detector params with one of its region settings. With the target image
-    a DTDMI point's peak fraction is also its ``appearance_peak_fraction`` (which the detector
-    applies, with an image, over ``regions.peak_fraction``): the search applies it to the
-    cached maps as a region setting."""
+    a DTDMI point's peak fraction and floor are also its ``appearance_peak_fraction`` and
+    ``appearance_floor`` (which the detector applies, with an image, over ``regions``): the
+    search applies them to the cached maps as region settings."""
     p = dict(point["params"])
     p.setdefault("downscale", 2)
     if regions:
         p["regions"] = {**p.get("regions", {}), **regions}
         if use_image and point.get("detector", "dtdmi") == "dtdmi" and "peak_fraction" in regions:
             p["appearance_peak_fraction"] = regions["peak_fraction"]
+        if use_image and point.get("detector", "dtdmi") == "dtdmi" and "adaptive_floor" in regions:
+            p["appearance_floor"] = regions["adaptive_floor"]
     return p
 
 

@@ -100,13 +100,18 @@ class DTDMIConfig(DetectorConfig):
     appearance_track_weight: float | None = Field(None, ge=0, le=1, description=(
         "with an appearance image: the map attenuated away from the previous frame's best "
         "detection, S x ((1 - this) + this x G), G a Gaussian of appearance_track_sigma_frac; "
-        "0: off; None: as the preset says"))
+        "0: off; None: as the preset says (aerial: 0.3; the others: 0)"))
     appearance_track_sigma_frac: float = Field(0.1, gt=0, le=1, description=(
         "sigma of appearance_track_weight's Gaussian, fraction of the image diagonal"))
     appearance_peak_fraction: float | None = Field(None, gt=0, le=1, description=(
         "with an appearance image: the adaptive regions' peak_fraction (the colour model makes "
         "the target's region brighter than its surroundings); None: as the preset says "
         "(aerial: 0.7, measured out of fold with the image; the others: regions.peak_fraction)"))
+    appearance_floor: int | None = Field(None, ge=1, le=254, description=(
+        "with an appearance image: the adaptive regions' adaptive_floor on 0..255 (a frame "
+        "whose image-weighted map stays below it has no region: no target); None: as the "
+        "preset says (aerial: 30, from target-free real ground; the others: "
+        "regions.adaptive_floor)"))
     colour_propagation: float | None = Field(None, ge=0, le=1, description=(
         "S <- (1 - this) S + this x (the mean of S over the pixels of each pixel's colour bin); "
         "0: off; None: as the preset says"))
@@ -169,6 +174,7 @@ class Resolved:
     appearance_track_weight: float = 0.0
     colour_propagation: float = 0.0
     appearance_peak_fraction: float | None = None
+    appearance_floor: int | None = None
 
 
 #: field preset: S_s (chromatic l-alpha-beta units) mapped to 0.5; T = 120/255 then needs
@@ -190,13 +196,16 @@ PRESETS: dict[str, Resolved] = {
     # aerial: tuned out of fold on ../shared's UAV sequences (benchmarks/tune_real.py); with an
     # example image of the target: unpooled colour bins, re-ranking exponent 8 (grid
     # aerial_appearance; that run's choice on all sequences also lowered regions.peak_fraction
-    # to 0.7: appearance_peak_fraction, used only with an image)
+    # to 0.7: appearance_peak_fraction, used only with an image); with an image, no region
+    # below 30 on 0..255 (appearance_floor: docs/detectors.md, "On real ground photos"); with
+    # that floor the grid's choice on all ten also follows the previous best detection (0.3)
     "aerial": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.003, 0.0, "absolute",
                        3.0, luminance_weight=0.6, spread_sigma_frac=0.1, contrast_level="bin",
                        fusion="max", dynamic_gain=2.5, colour_weight=1.0, block_weight=1.0,
                        block_radius_frac=0.0055, block_luminance_weight=0.6,
                        ego_motion="homography", appearance_pool=False,
-                       appearance_rank_exponent=8.0, appearance_peak_fraction=0.7),
+                       appearance_rank_exponent=8.0, appearance_peak_fraction=0.7,
+                       appearance_floor=30, appearance_track_weight=0.3),
 }
 
 #: Each preset's ``regions`` defaults (given keys override them; regions.py has the meaning).

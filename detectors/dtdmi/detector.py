@@ -93,9 +93,11 @@ class DTDMIDetector(SaliencyDetector):
             return super().detect(frame, prior)
         sal = self.follow(self.saliency(frame), self.track_px)
         cfg = self.config.regions
-        peak = self.engine.r.appearance_peak_fraction
-        if peak is not None:
-            cfg = cfg.model_copy(update={"peak_fraction": peak})
+        r = self.engine.r
+        if r.appearance_peak_fraction is not None:
+            cfg = cfg.model_copy(update={"peak_fraction": r.appearance_peak_fraction})
+        if r.appearance_floor is not None:
+            cfg = cfg.model_copy(update={"adaptive_floor": r.appearance_floor})
         gamma = self.engine.r.appearance_rank_exponent
         if gamma > 0:
             wide = cfg.model_copy(update={

@@ -89,7 +89,8 @@ def test_presets_keep_their_behaviour_unless_they_choose_a_refinement():
     assert r.colour_propagation == 0.3 and r.appearance_pool is False
     aerial = resolve(DTDMIConfig(preset="aerial"))
     assert aerial.appearance_pool is False and aerial.appearance_rank_exponent == 8.0
-    assert aerial.colour_propagation == 0.0 and aerial.appearance_track_weight == 0.0
+    assert aerial.colour_propagation == 0.0 and aerial.appearance_track_weight == 0.3
+    assert aerial.appearance_floor == 30 and aerial.appearance_peak_fraction == 0.7
     assert resolve(DTDMIConfig()).colour_propagation == 0.5  # default: chosen on DAVIS
     assert resolve(DTDMIConfig(preset="aerial",
                                appearance_rank_exponent=0)).appearance_rank_exponent == 0
@@ -185,3 +186,27 @@ def test_the_adaptive_threshold_with_an_image_uses_appearance_peak_fraction(
     peak8 = float(np.round(res.saliency.max() * 255.0))
     assert peak8 * fraction > 20  # above the aerial floor: the fraction sets T
     assert res.threshold == pytest.approx(fraction * peak8 / 255.0, abs=1.5 / 255.0)
+
+
+def test_with_an_image_no_region_below_appearance_floor(rng):
+    """The image-weighted map below ``appearance_floor`` everywhere: no region (no target);
+    the aerial preset's floor with an image is 30, without one regions.adaptive_floor (20)."""
+    crop = np.full((10, 12, 3), RED, np.uint8)
+    img = _two_boxes(rng, True, 0)
+
+    def run(params, image=True):
+        det = registry.load("detectors", "dtdmi", {"preset": "aerial", "use_dynamic": False,
+                                                   **params},
+                            appearance=crop if image else None)
+        for i in range(3):
+            res = det.detect(_frame(img, i))
+        return res
+
+    peak8 = float(np.round(run({}).saliency.max() * 255.0))
+    below, above = run({"appearance_floor": int(peak8) + 2}), run({"appearance_floor": 1})
+    assert below.detections == () and below.threshold == pytest.approx((peak8 + 2) / 255.0,
+                                                                        abs=1e-6)
+    assert above.detections != ()  # T = 0.7 x the peak
+    assert above.threshold == pytest.approx(0.7 * peak8 / 255.0, abs=1.5 / 255.0)
+    plain = DTDMIConfig(preset="aerial")
+    assert resolve(plain).appearance_floor == 30 and plain.regions.adaptive_floor == 20
