@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, get_args
 
 from eaglemission import registry
 from eaglemission.errors import EagleMissionError
@@ -73,14 +73,12 @@ class DetectorSpec:
 
 def preset_names(name: str) -> tuple[str, ...]:
     """The values a detector plugin's ``preset`` param takes (a ``Literal``), or ()."""
-    import typing
-
     try:
         cls = registry.get("detectors", name)
     except EagleMissionError:
         return ()
     preset = getattr(cls.Config, "model_fields", {}).get("preset")
-    args = typing.get_args(preset.annotation) if preset is not None else ()
+    args = get_args(preset.annotation) if preset is not None else ()
     return tuple(a for a in args if isinstance(a, str))
 
 
