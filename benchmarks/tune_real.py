@@ -76,7 +76,7 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 DATA = {"uav": SHARED / "uav_tracking", "davis": SHARED / "video_saliency" / "DAVIS2016"}
 FPS = {"uav": 10.0, "davis": 24.0}  # UAV123@10fps; the UAVDT/DTB70 clips are treated alike
-VERSION = 4  # bump when the detector code changes what a configuration computes
+VERSION = 5  # bump when the detector code changes what a configuration computes
 
 
 # ---------------------------------------------------------------------------------------------

@@ -79,9 +79,9 @@ def to_uint8(saliency: Saliency, normalize: str = "none") -> NDArray[np.uint8]:
             alpha=255.0 / (hi - lo)), dtype=np.uint8)
     elif normalize != "none":
         raise ValueError(f"normalize: must be 'none' or 'minmax', got {normalize!r}")
-    return np.asarray(cv2.convertScaleAbs(
-        cv2.max(s, 0.0),  # type: ignore[call-overload]  # stubs lack max(Mat, scalar)
-        alpha=255.0), dtype=np.uint8)
+    if not float(s.min()) >= 0.0:  # negative or NaN somewhere (a map in [0, 1]: one read)
+        s = cv2.max(s, 0.0)  # type: ignore[call-overload]  # stubs lack max(Mat, scalar)
+    return np.asarray(cv2.convertScaleAbs(s, alpha=255.0), dtype=np.uint8)
 
 
 def adaptive_threshold(peak8: float, floor: float, fraction: float) -> float:

@@ -40,7 +40,7 @@ import numpy as np
 from eaglemission.detectors.base import SaliencyDetector, validate_image
 from eaglemission.detectors.dtdmi.config import DTDMIConfig
 from eaglemission.detectors.dtdmi.engine import DTDMIEngine
-from eaglemission.detectors.dtdmi.refine import spotlit_saliency
+from eaglemission.detectors.dtdmi.refine import spotlight_factors, spotlit_saliency
 from eaglemission.detectors.regions import find_regions
 
 from eaglemission.types import Detection, DetectionResult, Frame, Saliency, TargetPrior
@@ -120,7 +120,16 @@ class DTDMIDetector(SaliencyDetector):
             return sal
         h, w = sal.shape
         sigma = self.config.appearance_track_sigma_frac * float(np.hypot(h, w))
-        return spotlit_saliency(sal, track_px, sigma, weight)
+        if not self.engine.numba:
+            return spotlit_saliency(sal, track_px, sigma, weight)
+        from eaglemission.detectors.dtdmi.kernels_general import spotlight
+
+        g_rows, g_cols, keep = spotlight_factors(sal.shape, track_px, sigma, weight)
+        # in place: the engine's map is a new array every frame (a fresh full-resolution plane
+        # costs ~1 ms of page faults at 1280x960)
+        out = sal if sal.flags.writeable and sal.flags.c_contiguous else sal.copy()
+        spotlight(out, g_rows, g_cols, float(keep), out)
+        return out
 
     def _warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel now, not on the first real frame."""

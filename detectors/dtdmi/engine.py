@@ -19,7 +19,7 @@ from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic,
 from eaglemission.detectors.dtdmi.equations_static import block_contrast_cue, gaussian_centre_weight
 from eaglemission.detectors.dtdmi.maps import (
     BilinearUpsampling,
-    block_contrast_fast,
+    block_contrast_into,
     lab_features,
     smooth_mapped,
     smooth_reduced,
@@ -44,6 +44,9 @@ class DTDMIEngine:
             import eaglemission.detectors.dtdmi.kernels as kernels
 
             self._k = kernels
+            import eaglemission.detectors.dtdmi.kernels_general as kernels_general
+
+            self._kg = kernels_general
         self.static = ClusterStatic(StaticParams(
             clusters=cfg.clusters, colour_space=self.r.colour_space,
             spatial_weight=self.r.spatial_weight, window_s=cfg.window_s,
@@ -78,6 +81,9 @@ class DTDMIEngine:
         # colour bin per pixel: the numba kernels compute it on the fly where they paint
         self._idx = np.zeros((1, 1) if self.numba else shape, np.uint16)
         self._out = np.zeros(shape, np.float32)
+        # the general path's S_s and block cue planes
+        self._s = np.zeros(shape if self.general else (1, 1), np.float32)
+        self._blk = np.zeros(shape if self.general else (1, 1), np.float32)
         # numpy backend: the coarse scales upsampled to full resolution (numba: on the fly)
         self._ups = np.zeros((n_up, h, w) if not self.numba else (n_up, 1, 1), np.float32)
         self._no_base = np.zeros((0, 1), np.float32)
@@ -307,21 +313,12 @@ class DTDMIEngine:
             if r.colour_weight > 0:
                 lut = self._static_lut(work, timestamp_ns)
                 hist = self._frame_hist
-                self._paint(work, lut, out)
-                s = out.copy() if r.colour_weight == 1.0 else out * np.float32(r.colour_weight)
+                if r.colour_weight != 1.0:  # on the look-up: the same products as on the plane
+                    lut = lut * np.float32(r.colour_weight)
+                s = self._s
+                self._paint(work, lut, s)
             if r.block_weight > 0:
-                diag = float(np.hypot(*self._hw))
-                radius = round(r.block_radius_frac * diag)
-                if self.numba:  # the OpenCV path (numba is the fast backend's name)
-                    blk = block_contrast_fast(work, r.block_luminance_weight, radius,
-                                              r.block_surround)
-                else:
-                    blk = block_contrast_cue(lab_features(work, r.block_luminance_weight),
-                                                radius, r.block_surround)
-                blk *= np.float32(r.block_weight / r.block_unit)
-                if r.block_fusion == "static":
-                    s = blk if s is None else np.add(s, blk, out=s)
-                    blk = None
+                s, blk = self._add_block_cue(work, s)
         if self.cfg.use_dynamic:
             self._dynamic_and_product(work, None, timestamp_ns, centre=False)  # S_M in out
             if s is None:
@@ -334,19 +331,51 @@ class DTDMIEngine:
                 s = fusion.final_saliency(s, out).astype(np.float32)
         if blk is not None:  # block_fusion "add": after Eq. (15)
             s = blk if s is None else np.add(s, blk, out=s)
-        if s is None:
-            s = np.zeros(self._hw, np.float32)
         if self.appearance is not None:
             if hist is None:
                 idx = quantize_bgr(work[::2, ::2])
                 hist = np.bincount(idx.ravel(), minlength=NBINS).astype(np.float64)
             a_lut = self.appearance.lut(hist)
-            self._paint(work, a_lut, out)
-            s = np.add(out, s * np.float32(self.cfg.appearance_saliency_weight), out=s)
+            weight = float(self.cfg.appearance_saliency_weight)
+            if s is None:
+                self._paint(work, a_lut, out)
+            elif self.numba:
+                self._kg.paint_add(work, a_lut, s, weight, out)
+            else:
+                self._paint(work, a_lut, out)
+                np.add(out, s * np.float32(weight), out=out)
+            s = out
+        if s is None:
+            out[...] = 0.0
+            return out
         if r.centre_sigma_frac > 0:
             s *= self._centre
-        out[...] = s
+        if s is not out:
+            out[...] = s
         return out
+
+    def _add_block_cue(self, work: np.ndarray,
+                       s: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The block contrast cue times ``block_weight / block_unit``: added to ``s`` (S_s;
+        ``block_fusion: static``), or returned as its own plane (``add``). Returns (s, block
+        plane or None)."""
+        r = self.r
+        radius = round(r.block_radius_frac * float(np.hypot(*self._hw)))
+        scale = r.block_weight / r.block_unit
+        into = r.block_fusion == "static" and s is not None
+        if self.numba:  # one fused pass (numba is the fast backend's name)
+            plane = s if into and s is not None else self._blk
+            block_contrast_into(work, r.block_luminance_weight, radius, r.block_surround, scale,
+                                plane, accumulate=into)
+        else:
+            plane = block_contrast_cue(lab_features(work, r.block_luminance_weight), radius,
+                                       r.block_surround)
+            plane *= np.float32(scale)
+            if into and s is not None:
+                plane = np.add(s, plane, out=s)
+        if r.block_fusion == "static":
+            return plane, None
+        return s, plane
 
     def _paint(self, work: np.ndarray, lut: np.ndarray, out: np.ndarray) -> None:
         """``out = lut[bin(work)]`` (colour bins of :func:`.static.quantize_bgr`)."""

@@ -304,7 +304,12 @@ def bin_contrast_cue(features: FloatArray, centres: FloatArray, counts: FloatArr
     total = counts.sum()
     if total <= 0:
         return np.zeros(len(features))
-    d = np.linalg.norm(np.asarray(features)[:, None, :] - np.asarray(centres)[None], axis=2)
+    f = np.asarray(features, np.float64)
+    c = np.asarray(centres, np.float64)
+    # ||f - c||^2 = ||f||^2 + ||c||^2 - 2 f.c: a (B, C) x (C, K) product instead of a (B, K, C)
+    # difference array (float64: the cancellation costs ~1e-8 of a unit near a centre)
+    d2 = (f * f).sum(axis=1)[:, None] + (c * c).sum(axis=1)[None, :] - 2.0 * (f @ c.T)
+    d = np.sqrt(np.maximum(d2, 0.0))
     cue: FloatArray = d @ (counts / total)
     return cue
 

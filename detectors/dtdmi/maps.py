@@ -1,5 +1,5 @@
 """Map plumbing of the DTDMI engine (:mod:`.engine`): the large-sigma smoothing done on a
-reduced copy, the CIE L*a*b* features and OpenCV version of the block contrast cue
+reduced copy, the CIE L*a*b* features and the fast version of the block contrast cue
 (:func:`.equations_static.block_contrast_cue`), and the bilinear upsampling plan the numba
 kernels read the coarse scales through.
 """
@@ -54,23 +54,22 @@ def lab_features(bgr: np.ndarray, luminance_weight: float) -> np.ndarray:
     return lab8.astype(np.float32) * scale + offset
 
 
-def block_contrast_fast(bgr: np.ndarray, luminance_weight: float, radius_px: int,
-                        surround: float) -> np.ndarray:
-    """:func:`.equations.block_contrast_cue` of :func:`lab_features` in OpenCV calls only (box
-    means of the 8-bit L*a*b* image straight to float, the weighted distance by
-    ``cv2.transform``): the same map within float rounding (tested), ~5x faster."""
+def block_contrast_into(bgr: np.ndarray, luminance_weight: float, radius_px: int,
+                        surround: float, scale: float, out: np.ndarray,
+                        accumulate: bool) -> None:
+    """``out (+)= scale x`` :func:`.equations_static.block_contrast_cue` of
+    :func:`lab_features` in one numba pass (:func:`.kernels_general.block_contrast`: both box
+    means from one integral image of the reflect-padded 8-bit L*a*b* frame, the weighted
+    distance in the same pass); the same map within float rounding (tested)."""
+    from eaglemission.detectors.dtdmi.kernels_general import block_contrast
+
     lab8 = cv2.cvtColor(bgr, cv2.COLOR_BGR2Lab)
     r = max(1, int(radius_px))
     big = max(r + 1, int(round(surround * r)))
-    centre = cv2.boxFilter(lab8, cv2.CV_32F, (2 * r + 1, 2 * r + 1),
-                           borderType=cv2.BORDER_REFLECT)
-    around = cv2.boxFilter(lab8, cv2.CV_32F, (2 * big + 1, 2 * big + 1),
-                           borderType=cv2.BORDER_REFLECT)
-    cv2.subtract(centre, around, dst=centre)
-    cv2.multiply(centre, centre, dst=centre)
+    padded = cv2.copyMakeBorder(lab8, big, big, big, big, cv2.BORDER_REFLECT)
+    ii = np.asarray(cv2.integral(padded, sdepth=cv2.CV_32S), dtype=np.int32)
     wl = luminance_weight * 100.0 / 255.0
-    dist = cv2.transform(centre, np.array([[wl * wl, 1.0, 1.0]], np.float32))
-    return cv2.sqrt(dist.reshape(dist.shape[0], dist.shape[1]))
+    block_contrast(ii.reshape(ii.shape[0], -1), big, r, big, wl * wl, scale, out, accumulate)
 
 
 class BilinearUpsampling:

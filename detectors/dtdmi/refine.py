@@ -96,19 +96,34 @@ def spotlit_saliency(sal: NDArray[np.floating], centre_px: tuple[float, float],
     strength : float
         In [0, 1].
     """
-    if not 0.0 <= strength <= 1.0:
-        raise ValueError(f"strength: must be in [0, 1], got {strength}")
-    if not sigma_px > 0:
-        raise ValueError(f"sigma_px: must be > 0, got {sigma_px}")
+    _check_spotlight(sigma_px, strength)
     s = np.asarray(sal, np.float32)
     if strength == 0.0:
         return s.copy()
-    h, w = s.shape
+    g_rows, g_cols, keep = spotlight_factors(s.shape, centre_px, sigma_px, strength)
+    weight = np.outer(g_rows, g_cols)
+    weight += keep
+    out: NDArray[np.float32] = s * weight
+    return out
+
+
+def spotlight_factors(shape: tuple[int, ...], centre_px: tuple[float, float], sigma_px: float,
+                      strength: float) -> tuple[NDArray[np.float32], NDArray[np.float32],
+                                                np.float32]:
+    """The separable factors of :func:`spotlit_saliency`'s weight ``(1 - a) + a G``:
+    ``(a x G_rows, G_cols, 1 - a)`` (float32), so that weight[v, u] = ``a G_rows[v] G_cols[u] +
+    (1 - a)``."""
+    _check_spotlight(sigma_px, strength)
+    h, w = shape[0], shape[1]
     u0, v0 = centre_px
     k = -0.5 / (sigma_px * sigma_px)
     g_cols = np.exp(k * (np.arange(w) - u0) ** 2).astype(np.float32)
     g_rows = np.exp(k * (np.arange(h) - v0) ** 2).astype(np.float32)
-    weight = np.outer(g_rows * np.float32(strength), g_cols)
-    weight += np.float32(1.0 - strength)
-    out: NDArray[np.float32] = s * weight
-    return out
+    return g_rows * np.float32(strength), g_cols, np.float32(1.0 - strength)
+
+
+def _check_spotlight(sigma_px: float, strength: float) -> None:
+    if not 0.0 <= strength <= 1.0:
+        raise ValueError(f"strength: must be in [0, 1], got {strength}")
+    if not sigma_px > 0:
+        raise ValueError(f"sigma_px: must be > 0, got {sigma_px}")

@@ -89,6 +89,10 @@ def test_normalize_none_vs_minmax():
 def test_to_uint8_saturates_and_zeroes_nan():
     s = np.array([[np.nan, -0.5, 0.2, 1.5, 1.0]], np.float32)
     np.testing.assert_array_equal(to_uint8(s), [[0, 0, 51, 255, 255]])
+    # NaN alone (nothing negative), negative alone, neither
+    np.testing.assert_array_equal(to_uint8(np.array([[np.nan, 0.2]], np.float32)), [[0, 51]])
+    np.testing.assert_array_equal(to_uint8(np.array([[-0.1, 0.2]], np.float32)), [[0, 51]])
+    np.testing.assert_array_equal(to_uint8(np.array([[0.0, 0.5]], np.float32)), [[0, 128]])
 
 
 def test_mbr_of_axis_aligned_block_lies_on_pixel_edges():

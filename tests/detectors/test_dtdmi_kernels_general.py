@@ -1,0 +1,94 @@
+"""The general path's fused kernels (detectors/dtdmi/kernels_general.py) equal the plain
+functions they replace, and the two backends agree on the paths that use them."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
+from eaglemission.detectors.dtdmi.equations_static import block_contrast_cue
+from eaglemission.detectors.dtdmi.kernels_general import paint_add, spotlight
+from eaglemission.detectors.dtdmi.maps import block_contrast_into, lab_features
+from eaglemission.detectors.dtdmi.refine import spotlight_factors, spotlit_saliency
+from eaglemission.detectors.dtdmi.static import quantize_bgr
+
+from eaglemission.types import Frame
+
+
+def _image(rng: np.random.RandomState, h: int, w: int) -> np.ndarray:
+    img = np.clip(rng.randn(h, w, 3) * 30 + 110, 0, 255).astype(np.uint8)
+    img[h // 3:h // 3 + max(2, h // 8), w // 2:w // 2 + max(2, w // 7)] = (30, 40, 210)
+    return img
+
+
+@pytest.mark.parametrize("h, w, radius, surround, lw", [
+    (48, 64, 2, 3.0, 0.6),
+    (37, 53, 1, 3.0, 0.3),    # odd sizes, the smallest blocks
+    (20, 24, 4, 4.0, 1.0),    # surround (16 px) near the image size: reflected twice
+    (120, 160, 4, 3.0, 0.0),  # chromatic only
+    (10, 13, 3, 5.0, 0.6),    # surround (15 px) beyond the image: OpenCV's repeated reflection
+])
+def test_block_cue_kernel_equals_the_box_means(h, w, radius, surround, lw):
+    img = _image(np.random.RandomState(h + w), h, w)
+    expected = block_contrast_cue(lab_features(img, lw), radius, surround) * np.float32(0.05)
+    out = np.full((h, w), -1.0, np.float32)
+    block_contrast_into(img, lw, radius, surround, 0.05, out, accumulate=False)
+    np.testing.assert_allclose(out, expected, rtol=1e-4, atol=1e-5)
+    base = np.random.RandomState(1).rand(h, w).astype(np.float32)
+    acc = base.copy()
+    block_contrast_into(img, lw, radius, surround, 0.05, acc, accumulate=True)
+    np.testing.assert_allclose(acc, base + expected, rtol=1e-4, atol=1e-5)
+    assert out.max() > 0.1  # the red patch stands out
+
+
+def test_spotlight_kernel_equals_spotlit_saliency(rng):
+    sal = rng.rand(61, 83).astype(np.float32)
+    for centre, sigma, a in (((12.0, 20.0), 5.0, 0.4), ((80.5, 3.0), 30.0, 0.3),
+                             ((-10.0, 70.0), 8.0, 1.0)):
+        g_rows, g_cols, keep = spotlight_factors(sal.shape, centre, sigma, a)
+        out = np.empty_like(sal)
+        spotlight(sal, g_rows, g_cols, float(keep), out)
+        np.testing.assert_allclose(out, spotlit_saliency(sal, centre, sigma, a), rtol=1e-6)
+
+
+def test_paint_add_equals_paint_then_add(rng):
+    img = _image(rng, 30, 50)
+    lut = rng.rand(4096).astype(np.float32)
+    add = rng.rand(30, 50).astype(np.float32)
+    out = np.empty_like(add)
+    paint_add(img, lut, add, 0.7, out)
+    np.testing.assert_allclose(out, lut[quantize_bgr(img)] + np.float32(0.7) * add, rtol=1e-6)
+    paint_add(img, lut, add, 0.7, add)  # in place
+    np.testing.assert_allclose(add, out, rtol=1e-6)
+
+
+@pytest.mark.parametrize("params", [
+    {"preset": "aerial", "use_dynamic": False},                  # the hardware template's
+    {"preset": "aerial", "ego_motion": "none"},                  # with the dynamic part
+    {"preset": "aerial", "use_dynamic": False, "block_fusion": "add", "colour_weight": 0.5},
+    {"preset": "default"},                                       # block cue added after Eq. 15
+])
+def test_backends_agree_with_an_example_image_and_following(params):
+    rng = np.random.RandomState(7)
+    target = np.full((12, 16, 3), (30, 40, 210), np.uint8)
+    dets = {b: DTDMIDetector(DTDMIConfig(**{**params, "backend": b}), appearance=target)
+            for b in ("numba", "numpy")}
+    for i in range(4):
+        img = _image(rng, 72, 96)
+        img = np.roll(img, 3 * i, axis=1)
+        frame = Frame(img, 1_000_000_000 + i * 100_000_000, "wide", i)
+        a, b = (dets[k].detect(frame) for k in ("numpy", "numba"))
+        np.testing.assert_allclose(b.saliency, a.saliency, atol=1e-5)
+        np.testing.assert_allclose([d.center_px for d in b.detections],
+                                   [d.center_px for d in a.detections], atol=1e-3)
+    assert dets["numba"].track_px is not None  # the last frames followed the red patch
+
+
+def test_cv2_reflect_padding_is_the_box_filters_border():
+    """The kernel pads once by the surround's half-size; a box filter of a smaller block reads
+    the same reflected pixels (BORDER_REFLECT is position-wise)."""
+    img = np.arange(7 * 9 * 3, dtype=np.uint8).reshape(7, 9, 3)
+    padded = cv2.copyMakeBorder(img, 5, 5, 5, 5, cv2.BORDER_REFLECT)
+    small = cv2.copyMakeBorder(img, 2, 2, 2, 2, cv2.BORDER_REFLECT)
+    np.testing.assert_array_equal(padded[3:-3, 3:-3], small)
