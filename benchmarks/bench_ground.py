@@ -18,8 +18,9 @@ window. Nothing is composited: every detection is false. The issue's target: at 
 detections per frame.
 
 Detectors are given as for ``eaglemission bench`` (``NAME``, ``NAME@preset``, ``--params``);
-by default the mission's (configs/sitl_synthetic.yaml: dtdmi field without the dynamic part, at
-the runner's ``detector_downscale`` 2) and SR. Photos are the ground the mission's simulated world
+by default the mission's (configs/sitl_synthetic.yaml's detector, at the runner's
+``detector_downscale`` 2, with the mission's ``target.appearance_image`` unless ``--target-image``
+is given) and SR. Photos are the ground the mission's simulated world
 may use (issue 14), so the two sites are reported separately: tune on one, test on the other.
 """
 
@@ -108,6 +109,15 @@ def mission_detector_spec() -> tuple[str, str, dict]:
     return "mission", cfg.detector.type, params
 
 
+def mission_context() -> dict[str, np.ndarray]:
+    """The mission's detector context: its ``target.appearance_image``, when it has one."""
+    from eaglemission.assembly import load_appearance_image
+    from eaglemission.config import load_config
+
+    img = load_appearance_image(load_config(check_plugins=False))
+    return {} if img is None else {"appearance": img}
+
+
 def load_detectors(spec_text: str, params: list[str]) -> list[tuple[str, str, dict]]:
     names = [s.strip() for s in spec_text.split(",") if s.strip()]
     out = []
@@ -175,8 +185,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.target_image is not None:
         context["appearance"] = target_image(a.target_image)
     try:
-        dets = [(label, registry.load("detectors", name, prm, **context)) for label, name, prm
-                in load_detectors(a.detectors, a.params)]
+        dets = [(label, registry.load("detectors", name, prm,
+                                      **(mission_context() if label == "mission"
+                                         and not context else context)))
+                for label, name, prm in load_detectors(a.detectors, a.params)]
     except EagleMissionError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -165,7 +165,8 @@ class Assembly:
                            autopilot_guard=self.guard)
 
 
-def _appearance(cfg: MissionFile) -> Any:
+def load_appearance_image(cfg: MissionFile) -> Any:
+    """The mission's ``target.appearance_image`` as a BGR array (None without one)."""
     path = getattr(cfg.target, "appearance_image", None)
     if not path:
         return None
@@ -229,7 +230,7 @@ def assemble(cfg: MissionFile, clock: Clock, *,
             "cameras", section.type, section.params, model=section.to_model(cid), clock=clock,
             camera_id=cid, target=cfg.target, simulation=simulation, safety=cfg.safety,
             shared=shared, pose_source=pose)
-    appearance = _appearance(cfg)
+    appearance = load_appearance_image(cfg)
     detectors = {cid: registry.load("detectors", cfg.detector.type, detector_params(cfg, cid),
                                     camera_id=cid, appearance=appearance)
                  for cid in CAMERAS}

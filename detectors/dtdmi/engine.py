@@ -16,11 +16,10 @@ import eaglemission.detectors.dtdmi.refine as refine
 import numpy as np
 from eaglemission.detectors.dtdmi.config import DTDMIConfig, resolve
 from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
-from eaglemission.detectors.dtdmi.equations_static import block_contrast_cue, gaussian_centre_weight
+from eaglemission.detectors.dtdmi.equations_static import gaussian_centre_weight
 from eaglemission.detectors.dtdmi.maps import (
     BilinearUpsampling,
-    block_contrast_into,
-    lab_features,
+    add_block_cue,
     smooth_mapped,
     smooth_reduced,
     smoothing_factor,
@@ -318,7 +317,7 @@ class DTDMIEngine:
                 s = self._s
                 self._paint(work, lut, s)
             if r.block_weight > 0:
-                s, blk = self._add_block_cue(work, s)
+                s, blk = add_block_cue(work, r, s, self._blk if self.numba else None)
         if self.cfg.use_dynamic:
             self._dynamic_and_product(work, None, timestamp_ns, centre=False)  # S_M in out
             if s is None:
@@ -332,50 +331,20 @@ class DTDMIEngine:
         if blk is not None:  # block_fusion "add": after Eq. (15)
             s = blk if s is None else np.add(s, blk, out=s)
         if self.appearance is not None:
-            if hist is None:
-                idx = quantize_bgr(work[::2, ::2])
-                hist = np.bincount(idx.ravel(), minlength=NBINS).astype(np.float64)
-            a_lut = self.appearance.lut(hist)
+            a_lut = self.appearance.lut(sampled_colour_hist(work) if hist is None else hist)
             weight = float(self.cfg.appearance_saliency_weight)
             if s is None:
                 self._paint(work, a_lut, out)
-            elif self.numba:
-                self._kg.paint_add(work, a_lut, s, weight, out)
-            else:
-                self._paint(work, a_lut, out)
-                np.add(out, s * np.float32(weight), out=out)
+            else:  # out = A + weight x S
+                (self._kg.paint_add if self.numba else paint_add)(work, a_lut, s, weight, out)
             s = out
         if s is None:
             out[...] = 0.0
-            return out
-        if r.centre_sigma_frac > 0:
-            s *= self._centre
-        if s is not out:
+        elif s is not out:
             out[...] = s
+        if r.centre_sigma_frac > 0:
+            out *= self._centre
         return out
-
-    def _add_block_cue(self, work: np.ndarray,
-                       s: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """The block contrast cue times ``block_weight / block_unit``: added to ``s`` (S_s;
-        ``block_fusion: static``), or returned as its own plane (``add``). Returns (s, block
-        plane or None)."""
-        r = self.r
-        radius = round(r.block_radius_frac * float(np.hypot(*self._hw)))
-        scale = r.block_weight / r.block_unit
-        into = r.block_fusion == "static" and s is not None
-        if self.numba:  # one fused pass (numba is the fast backend's name)
-            plane = s if into and s is not None else self._blk
-            block_contrast_into(work, r.block_luminance_weight, radius, r.block_surround, scale,
-                                plane, accumulate=into)
-        else:
-            plane = block_contrast_cue(lab_features(work, r.block_luminance_weight), radius,
-                                       r.block_surround)
-            plane *= np.float32(scale)
-            if into and s is not None:
-                plane = np.add(s, plane, out=s)
-        if r.block_fusion == "static":
-            return plane, None
-        return s, plane
 
     def _paint(self, work: np.ndarray, lut: np.ndarray, out: np.ndarray) -> None:
         """``out = lut[bin(work)]`` (colour bins of :func:`.static.quantize_bgr`)."""
@@ -457,6 +426,17 @@ class DTDMIEngine:
             np.minimum(result, np.float32(1.0), out=result)
         else:
             result[...] = 0.0
+
+
+def sampled_colour_hist(bgr: np.ndarray) -> np.ndarray:
+    """Counts of the colour bins over every 2nd row and column (float64, :data:`.static.NBINS`)."""
+    return np.bincount(quantize_bgr(bgr[::2, ::2]).ravel(), minlength=NBINS).astype(np.float64)
+
+
+def paint_add(bgr: np.ndarray, lut: np.ndarray, add: np.ndarray, weight: float,
+              out: np.ndarray) -> None:
+    """``out = lut[bin(bgr)] + weight x add`` (numpy; :func:`.kernels_general.paint_add`)."""
+    np.add(np.take(lut, quantize_bgr(bgr)), add * np.float32(weight), out=out)
 
 
 def propagate_by_colour(sal: np.ndarray, bgr: np.ndarray, weight: float, kernels: Any,

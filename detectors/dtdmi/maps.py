@@ -7,6 +7,7 @@ kernels read the coarse scales through.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -70,6 +71,33 @@ def block_contrast_into(bgr: np.ndarray, luminance_weight: float, radius_px: int
     ii = np.asarray(cv2.integral(padded, sdepth=cv2.CV_32S), dtype=np.int32)
     wl = luminance_weight * 100.0 / 255.0
     block_contrast(ii.reshape(ii.shape[0], -1), big, r, big, wl * wl, scale, out, accumulate)
+
+
+def add_block_cue(work: np.ndarray, r: Any, s: np.ndarray | None,
+                  plane: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The block contrast cue of ``work`` times ``block_weight / block_unit`` (``r``: the
+    engine's resolved preset values): added to ``s`` (S_s, ``block_fusion: static``) or
+    returned as its own plane (``add``). ``plane``: a preallocated (H, W) float32 plane for
+    the fused kernel (:func:`block_contrast_into`); None: the plain numpy functions. Returns
+    (s, block plane or None)."""
+    radius = round(r.block_radius_frac * float(np.hypot(work.shape[0], work.shape[1])))
+    scale = r.block_weight / r.block_unit
+    into = r.block_fusion == "static" and s is not None
+    if plane is not None:  # one fused pass
+        target = s if into and s is not None else plane
+        block_contrast_into(work, r.block_luminance_weight, radius, r.block_surround, scale,
+                            target, accumulate=into)
+    else:
+        from eaglemission.detectors.dtdmi.equations_static import block_contrast_cue
+
+        target = block_contrast_cue(lab_features(work, r.block_luminance_weight), radius,
+                                    r.block_surround)
+        target *= np.float32(scale)
+        if into and s is not None:
+            target = np.add(s, target, out=s)
+    if r.block_fusion == "static":
+        return target, None
+    return s, target
 
 
 class BilinearUpsampling:

@@ -19,6 +19,7 @@ from eaglemission.config import (
     MissionFile,
     load_config,
     parse_yaml,
+    resolve_relative_paths,
     validate_mapping,
 )
 from eaglemission.errors import ConfigError
@@ -58,7 +59,9 @@ def test_shipped_configs_pass_the_schema(name: str) -> None:
 
 
 def test_embedded_default_is_the_shipped_sitl_config() -> None:
-    assert load_config(check_plugins=False) == validate_mapping(shipped_data(), check_plugins=False)
+    # the embedded file's relative paths (the target's image) resolve against the configs package
+    assert load_config(check_plugins=False) == resolve_relative_paths(
+        validate_mapping(shipped_data(), check_plugins=False), None)
 
 
 def test_models_are_frozen_and_loading_does_not_mutate_input() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 
 import yaml
@@ -13,7 +14,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_appearance_image_resolves_relative_to_the_mission_file(tmp_path: Path) -> None:
     data = yaml.safe_load((REPO / "configs" / "sitl_synthetic.yaml").read_text())
-    assert load_config(check_plugins=False).target.appearance_image is None
+    # the embedded default's image resolves against the installed configs package
+    assert load_config(check_plugins=False).target.appearance_image == str(
+        Path(str(resources.files("eaglemission.configs"))) / "targets" / "red_box.jpg")
     data["target"]["appearance_image"] = "images/box.png"
     (tmp_path / "sub").mkdir()
     f = tmp_path / "sub" / "m.yaml"

@@ -152,7 +152,8 @@ def test_aerial_regions_on_a_real_uav_sequence(uav_tracking):
 
 def test_regions_stay_silent_on_target_free_real_ground(aerial_ground):
     """Mown grass of Garfield Park (a 1280 x 960 window upsampled ~2.3x, ~32 mm per pixel; the
-    mission's downscale 2): no region from the mission's detector nor from the default preset
+    mission's downscale 2): no region from the mission's detector (with the mission's example
+    image of the target) nor from the default preset
     (adaptive threshold above its floor); the aerial preset, whose floor is tuned for detection
     on real footage, may fire on the grass, but with a small red box pasted on it its best
     detection is the box."""
@@ -162,9 +163,12 @@ def test_regions_stay_silent_on_target_free_real_ground(aerial_ground):
 
     photo = cv2.imread(str(aerial_ground / "garfield_park" / "IMG_161122_163244_0002_RGB.jpg"))
     window = cv2.resize(photo[300:950, 100:967], (1280, 960), interpolation=cv2.INTER_CUBIC)
-    cfg = load_config(check_plugins=False)
+    from eaglemission.assembly import load_appearance_image
+
+    cfg = load_config(check_plugins=False)  # the mission's detector as it flies: with its image
     mission = registry.load("detectors", cfg.detector.type,
-                            {**cfg.detector.params, "downscale": 2})
+                            {**cfg.detector.params, "downscale": 2},
+                            appearance=load_appearance_image(cfg))
     default = registry.load("detectors", "dtdmi", {"downscale": 2})
     for i in range(3):
         shifted = np.ascontiguousarray(np.roll(window, 4 * i, axis=1))

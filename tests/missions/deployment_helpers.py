@@ -29,6 +29,9 @@ def free_udp_port() -> int:
 def mission_file(tmp: Path, name: str, base: str = "sitl_synthetic.yaml", **sections: Any) -> Path:
     """A shipped config (``base``) with some sections' keys replaced, written to disk."""
     data = yaml.safe_load((REPO / "configs" / base).read_text())
+    image = (data.get("target") or {}).get("appearance_image")
+    if image and not Path(image).is_absolute():  # relative to the shipped file, not the copy
+        data["target"]["appearance_image"] = str(REPO / "configs" / image)
     for key, value in sections.items():
         if isinstance(value, dict) and isinstance(data.get(key), dict) and not value.get("_replace"):
             data[key] = {**data[key], **value}

@@ -226,12 +226,20 @@ def run_521() -> MissionFile:
                             "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]})
 
 
+#: the mission's detector until 6 Dec 2026, which confirms the box of run 521 before the target
+FIELD_DETECTOR = {"type": "dtdmi", "params": {"preset": "field", "use_dynamic": False,
+                                              "downscale": 2}}
+
+
 def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_again(
         run_521: MissionFile, tmp_path: Path) -> None:
     """With the default silhouette check: the box's outlines fit the target's shape at IoU
     0.7-0.8 (the target's own at 0.9-1), so it is rejected after 8 views; the route is flown
-    again and the target grasped (before the check: GRASP_READY on the box, 11.2 m away)."""
-    out = run_simulation(run_521, log_path=tmp_path / "run.jsonl")
+    again and the target grasped (before the check: GRASP_READY on the box, 11.2 m away).
+    Flown with the `field` detector, which confirms the box first (the shipped `aerial` +
+    image confirms the target first: the next test)."""
+    field = variant(run_521, detector=FIELD_DETECTOR, target={"appearance_image": None})
+    out = run_simulation(field, log_path=tmp_path / "run.jsonl")
     ev = out.evaluation
     texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
     assert any("does not fit the target's shape" in t and "north 38." in t
@@ -240,6 +248,20 @@ def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_a
     ious = [h["silhouette_iou"] for h in out.log.of_kind("heading")
             if h["silhouette_iou"] is not None]
     assert ious and min(ious) > 0.5
+    assert ev.reached_grasp_ready and ev.final_state == "DONE", ev.explanation
+    assert ev.horizontal_error_m is not None and ev.horizontal_error_m < 0.05
+    assert not ev.violations
+
+
+def test_the_shipped_detector_confirms_the_target_of_run_521_not_the_box(
+        run_521: MissionFile, tmp_path: Path) -> None:
+    """The embedded mission's detector (`aerial` + the target's example image) takes the target
+    at N 28 m on its first sighting: no candidate to reject, grasped within 5 cm."""
+    out = run_simulation(run_521, log_path=tmp_path / "run.jsonl")
+    ev = out.evaluation
+    texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
+    assert not any("does not fit the target's shape" in t or "candidate rejected" in t
+                   for t in texts), texts
     assert ev.reached_grasp_ready and ev.final_state == "DONE", ev.explanation
     assert ev.horizontal_error_m is not None and ev.horizontal_error_m < 0.05
     assert not ev.violations
