@@ -14,7 +14,7 @@ import cv2
 import eaglemission.detectors.dtdmi.equations_fusion as fusion
 import eaglemission.detectors.dtdmi.refine as refine
 import numpy as np
-from eaglemission.detectors.dtdmi.config import DTDMIConfig, resolve
+from eaglemission.detectors.dtdmi.config import DTDMIConfig, dynamic_on, resolve
 from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
 from eaglemission.detectors.dtdmi.equations_static import gaussian_centre_weight
 from eaglemission.detectors.dtdmi.maps import (
@@ -68,6 +68,11 @@ class DTDMIEngine:
         self.appearance = model
         self.general = self.general or model is not None
         self._shape = None  # reallocate: the general path does not pool the smoothing
+
+    @property
+    def use_dynamic(self) -> bool:
+        """Whether the dynamic part runs (:func:`.config.dynamic_on`)."""
+        return dynamic_on(self.cfg, self.appearance is not None)
 
     def reset(self) -> None:
         self.static.reset()
@@ -163,12 +168,6 @@ class DTDMIEngine:
         self._frame_hist = hist  # the sampled colour counts (appearance prior)
         return lut
 
-    def _compress(self, top: float) -> float:
-        """Per-scale factor ``1 / max`` (default preset) or 1 (literal)."""
-        if not self.r.normalize_scales:
-            return 1.0
-        return 1.0 / top if top > 0 else 1.0
-
     def _dynamic_and_product(self, work: np.ndarray, lut: np.ndarray | None,
                              timestamp_ns: int, centre: bool = True) -> float:
         """Eqs. (7)-(15) into ``self._out``; returns its maximum. ``lut`` None: S_M alone
@@ -192,7 +191,7 @@ class DTDMIEngine:
         coarse_tops = tops[1:] if self._has_full else tops
         h, w = self._hw
         for k, m in enumerate(coarse):
-            f = self._compress(coarse_tops[k])
+            f = scale_compression(self.r.normalize_scales, coarse_tops[k])
             if f != 1.0:
                 m *= np.float32(f)
             if gamma == 0.25:
@@ -212,7 +211,7 @@ class DTDMIEngine:
                                        interpolation=cv2.INTER_LINEAR)
             if not self.numba:
                 cv2.resize(base, (w, h), dst=self._ups[0], interpolation=cv2.INTER_LINEAR)
-        inv0 = self._compress(tops[0]) if full is not None else 1.0
+        inv0 = scale_compression(self.r.normalize_scales, tops[0]) if full is not None else 1.0
         boost = self.r.fusion == "boost" and lut is not None
         use_static = lut is not None and not boost
         # with boost, the centre weight multiplies the whole S (after the boost), not S_M alone
@@ -318,7 +317,7 @@ class DTDMIEngine:
                 self._paint(work, lut, s)
             if r.block_weight > 0:
                 s, blk = add_block_cue(work, r, s, self._blk if self.numba else None)
-        if self.cfg.use_dynamic:
+        if self.use_dynamic:
             self._dynamic_and_product(work, None, timestamp_ns, centre=False)  # S_M in out
             if s is None:
                 s = out.copy()
@@ -382,7 +381,7 @@ class DTDMIEngine:
             return self._finish(self._general_saliency(work, timestamp_ns), -1.0, bgr, shape)
         lut = self._static_lut(work, timestamp_ns) if cfg.use_static else None
         out = self._out
-        if cfg.use_dynamic:
+        if self.use_dynamic:
             top = self._dynamic_and_product(work, lut, timestamp_ns)
         else:
             assert lut is not None
@@ -394,7 +393,7 @@ class DTDMIEngine:
                 if use_centre:
                     out *= self._centre
                 top = float(out.max())
-        if cfg.use_dynamic and self._pool_f:
+        if self.use_dynamic and self._pool_f:
             sigma_px = self.r.blur_sigma_frac * float(np.hypot(*shape))
             return smooth_reduced(self._pooled, sigma_px / self._pool_f, True,
                                   (bgr.shape[0], bgr.shape[1]), self._to_unit)
@@ -426,6 +425,13 @@ class DTDMIEngine:
             np.minimum(result, np.float32(1.0), out=result)
         else:
             result[...] = 0.0
+
+
+def scale_compression(normalize: bool, top: float) -> float:
+    """Per-scale factor ``1 / max`` (``normalize``: default preset) or 1 (literal)."""
+    if not normalize:
+        return 1.0
+    return 1.0 / top if top > 0 else 1.0
 
 
 def sampled_colour_hist(bgr: np.ndarray) -> np.ndarray:

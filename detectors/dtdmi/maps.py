@@ -80,9 +80,9 @@ def add_block_cue(work: np.ndarray, r: Any, s: np.ndarray | None,
     returned as its own plane (``add``). ``plane``: a preallocated (H, W) float32 plane for
     the fused kernel (:func:`block_contrast_into`); None: the plain numpy functions. Returns
     (s, block plane or None)."""
-    radius = round(r.block_radius_frac * float(np.hypot(work.shape[0], work.shape[1])))
     scale = r.block_weight / r.block_unit
     into = r.block_fusion == "static" and s is not None
+    radius = round(r.block_radius_frac * float(np.hypot(work.shape[0], work.shape[1])))
     if plane is not None:  # one fused pass
         target = s if into and s is not None else plane
         block_contrast_into(work, r.block_luminance_weight, radius, r.block_surround, scale,
