@@ -2,7 +2,7 @@
 
     python benchmarks/tune_real.py uav                     # aerial grid on ../shared's UAV sequences
     python benchmarks/tune_real.py uav --target-image      # + the first-frame crop as appearance
-                                                           # (grid aerial_appearance_static: the
+                                                           # (grid aerial_appearance_exposure: the
                                                            # preset with an image has no dynamic part)
     python benchmarks/tune_real.py davis                   # default-preset grid on DAVIS 2016
     python benchmarks/tune_real.py uav --grid my.json      # a JSON list of {"params": ..., "regions": ...}
@@ -78,7 +78,7 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 DATA = {"uav": SHARED / "uav_tracking", "davis": SHARED / "video_saliency" / "DAVIS2016"}
 FPS = {"uav": 10.0, "davis": 24.0}  # UAV123@10fps; the UAVDT/DTB70 clips are treated alike
-VERSION = 6  # bump when the detector code changes what a configuration computes
+VERSION = 11  # bump when the detector code changes what a configuration computes
 
 
 # ---------------------------------------------------------------------------------------------
@@ -139,9 +139,18 @@ def grid_aerial_appearance() -> list[dict[str, Any]]:
 
 def grid_aerial_appearance_static() -> list[dict[str, Any]]:
     """:func:`grid_aerial_appearance` without the dynamic part (what the ``aerial`` preset runs
-    with an example image since 6 Dec 2026): 77.9 % out of fold."""
-    return [{**g, "params": {**g["params"], "use_dynamic": False}}
+    with an example image since 6 Dec 2026): 77.9 % out of fold, with the example's colours as
+    they are (``appearance_exposure_span`` 1)."""
+    return [{**g, "params": {**g["params"], "use_dynamic": False,
+                             "appearance_exposure_span": 1.0}}
             for g in grid_aerial_appearance()]
+
+
+def grid_aerial_appearance_exposure() -> list[dict[str, Any]]:
+    """:func:`grid_aerial_appearance_static` with the colour model's exposure span 1 (the
+    example's colours as they are), 1.2 or 1.5 (gains from 1/span to span)."""
+    return [{**g, "params": {**g["params"], "appearance_exposure_span": span}}
+            for span in (1.0, 1.2, 1.5) for g in grid_aerial_appearance_static()]
 
 
 def grid_aerial_appearance_round1() -> list[dict[str, Any]]:
@@ -188,6 +197,7 @@ def grid_default_round1() -> list[dict[str, Any]]:
 GRIDS = {"aerial": grid_aerial, "aerial_round1": grid_aerial_round1,
          "aerial_appearance": grid_aerial_appearance,
          "aerial_appearance_static": grid_aerial_appearance_static,
+         "aerial_appearance_exposure": grid_aerial_appearance_exposure,
          "aerial_appearance_round1": grid_aerial_appearance_round1, "default": grid_default,
          "default_round1": grid_default_round1}
 
@@ -362,8 +372,8 @@ def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: b
                     wide = rc.model_copy(update={"max_detections": max(
                         rc.max_detections, det.config.appearance_candidates)})
                     dets, t = find_regions(s_k, wide)
-                    dets = appearance_rerank(dets, small, model.q, gamma, rc.max_detections,
-                                             pool=model.pool)
+                    dets = appearance_rerank(dets, small, model, gamma, rc.max_detections,
+                                             exposure=det.engine.exposure)
                 else:
                     dets, t = find_regions(s_k, rc)
                 tracks[k] = dets[0].center_px if dets else None
@@ -486,7 +496,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     kind = a.dataset
     grid_name = a.grid or ("default" if kind == "davis" else
-                           "aerial_appearance_static" if a.target_image else "aerial")
+                           "aerial_appearance_exposure" if a.target_image else "aerial")
     if grid_name in GRIDS:
         grid = GRIDS[grid_name]()
     else:

@@ -11,8 +11,13 @@ look-up table, so it costs one table per frame and the look-up the static map al
    weight that removes the colours of the image's border (a photo on a plain background, the
    background around a cropped target): a bin more common in the border than in the
    kernel-weighted centre is weighted by ``centre(b) / border(b)`` (after Comaniciu et al.'s
-   background-weighted histogram); a uniform example keeps every weight. Bins are pooled with their 26 neighbours (tolerance to shading
-   and white balance) and ``q`` sums to 1.
+   background-weighted histogram); a uniform example keeps every weight. Bins may be pooled
+   with their 26 neighbours (tolerance to shading and white balance) and ``q`` sums to 1.
+   With an exposure span ``s`` > 1, the model holds one such histogram per gain from ``1/s`` to
+   ``s`` (the example scaled, saturating at 255 as a camera does): a 4-bit bin is 16 levels
+   wide, so a red of 200 leaves its bin at a gain of 0.92 and the example's colours alone miss
+   the target under other light. Per frame, :meth:`AppearanceModel.select` picks the gain at
+   which the example's colours are most present in the frame (docs/detectors.md, "Exposure").
 2. **Back-projection** on a frame with colour histogram ``p`` (sums to 1, pooled the same way):
    ``A(b) = q(b) / (q(b) + p(b) / prior)``, the posterior probability that a pixel of colour
    ``b`` belongs to the target when the target covers a fraction ``prior`` of the frame (Bayes
@@ -31,9 +36,10 @@ DOI 10.1109/TPAMI.2003.1195991 (kernel-weighted and background-weighted histogra
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 from eaglemission.detectors.base import validate_appearance
 from eaglemission.detectors.dtdmi.equations_static import pool_colour_bins
@@ -44,6 +50,12 @@ from eaglemission.errors import InputError
 
 #: Fraction of the example's width (height) on each side whose colours count as background.
 BORDER_FRACTION = 0.15
+#: Largest ratio between consecutive gains of an exposure span (a bright channel of 240 moves
+#: 12 levels, under one 16-level bin, from one gain to the next).
+EXPOSURE_STEP = 1.05
+#: A frame switches the model away from gain 1 only when another gain finds this many times
+#: more of the example's colours in it (:meth:`AppearanceModel.select`).
+EXPOSURE_SWITCH = 1.5
 
 
 def kernel_weights(height_px: int, width_px: int) -> NDArray[np.float64]:
@@ -105,6 +117,25 @@ def target_histogram(image: NDArray[np.uint8], *, pool: bool = True,
     return q / total if total > 0 else q
 
 
+def exposure_gains(span: float, step: float = EXPOSURE_STEP) -> NDArray[np.float64]:
+    """Gains from ``1/span`` to ``span``, geometric, 1 included, consecutive ratios <= ``step``
+    (``[1.0]`` for a span of 1)."""
+    if not span >= 1:
+        raise ValueError(f"exposure span: must be >= 1, got {span}")
+    half = int(np.ceil(np.log(span) / np.log(step) - 1e-9)) if span > 1 else 0
+    return np.geomspace(1.0 / span, span, 2 * half + 1) if half else np.ones(1)
+
+
+def exposure_histograms(image: NDArray[np.uint8], span: float, *, pool: bool = True,
+                        border_fraction: float = BORDER_FRACTION) -> NDArray[np.float64]:
+    """(G, 4096) :func:`target_histogram` of the example scaled by each of
+    :func:`exposure_gains` (``span``), saturating at 255 like a camera's pixel values."""
+    return np.stack([
+        target_histogram(image if g == 1.0 else cv2.convertScaleAbs(image, alpha=float(g)),
+                         pool=pool, border_fraction=border_fraction)
+        for g in exposure_gains(span)])
+
+
 def frame_histogram(hist: ArrayLike, *, pool: bool = True) -> NDArray[np.float64]:
     """A frame's 4096-bin colour counts (e.g. the static cue's sampled histogram), pooled like
     :func:`target_histogram` and normalised to sum 1."""
@@ -143,32 +174,74 @@ def appearance_posterior(q: NDArray[np.floating], p: NDArray[np.floating],
 
 @dataclass(frozen=True)
 class AppearanceModel:
-    """The colour model of an example image; ``lut(frame_hist)`` back-projects it."""
+    """The colour model of an example image.
 
-    q: NDArray[np.float64]
+    ``q_exposures`` holds one histogram per exposure gain (:func:`exposure_histograms`; one row
+    without an exposure span); ``select(frame_hist)`` picks the gain for a frame,
+    ``lut(frame_hist, k)`` back-projects gain ``k``'s histogram and ``match(region_hist, k)``
+    scores a region's colours against it. ``q`` is gain 1's histogram."""
+
+    q_exposures: NDArray[np.float64]
     prior: float = 0.01
     pool: bool = True
+    unit: int = field(init=False)
+    _sqrt_q: NDArray[np.float64] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        qs = np.atleast_2d(np.asarray(self.q_exposures, np.float64))
+        object.__setattr__(self, "q_exposures", qs)
+        object.__setattr__(self, "unit", len(qs) // 2)  # exposure_gains is symmetric about 1
+        object.__setattr__(self, "_sqrt_q", np.sqrt(qs))
 
     @classmethod
     def from_image(cls, image: Any, *, prior: float = 0.01, pool: bool = True,
-                   border_fraction: float = BORDER_FRACTION) -> AppearanceModel:
+                   border_fraction: float = BORDER_FRACTION,
+                   exposure_span: float = 1.0) -> AppearanceModel:
         img = validate_appearance(image)
         if img is None:
             raise InputError("appearance: no image given")
-        return cls(target_histogram(img, pool=pool, border_fraction=border_fraction), prior, pool)
+        if not 1.0 <= exposure_span <= 4.0:
+            raise InputError(f"appearance exposure span: must be in [1, 4], got {exposure_span}")
+        return cls(exposure_histograms(img, exposure_span, pool=pool,
+                                       border_fraction=border_fraction), prior, pool)
 
-    def lut(self, frame_hist: ArrayLike) -> NDArray[np.float32]:
-        """(4096,) float32 posterior per colour bin for a frame with these bin counts."""
-        return appearance_posterior(self.q, frame_histogram(frame_hist, pool=self.pool),
-                                    self.prior)
+    @property
+    def q(self) -> NDArray[np.float64]:
+        """(4096,) gain 1's colour model (sums to 1)."""
+        q: NDArray[np.float64] = self.q_exposures[self.unit]
+        return q
+
+    def select(self, frame_hist: ArrayLike) -> int:
+        """The exposure (row of ``q_exposures``) for a frame with these bin counts: the gain
+        whose histogram finds most of itself in the frame, ``sum_b min(prior q_g(b), p(b))``
+        (the part of a target covering ``prior`` of the frame that the frame's colours can
+        hold), gain 1 unless another finds :data:`EXPOSURE_SWITCH` times more."""
+        if len(self.q_exposures) == 1:
+            return 0
+        p = frame_histogram(frame_hist, pool=self.pool)
+        found = np.minimum(self.prior * self.q_exposures, p).sum(axis=1)
+        best = int(np.argmax(found))
+        return best if found[best] > EXPOSURE_SWITCH * found[self.unit] else self.unit
+
+    def lut(self, frame_hist: ArrayLike, exposure: int | None = None) -> NDArray[np.float32]:
+        """(4096,) float32 posterior per colour bin for a frame with these bin counts, with the
+        model at ``exposure`` (a row of ``q_exposures``; None: gain 1)."""
+        q = self.q if exposure is None else self.q_exposures[exposure]
+        return appearance_posterior(q, frame_histogram(frame_hist, pool=self.pool), self.prior)
+
+    def match(self, region_hist: NDArray[np.floating], exposure: int | None = None) -> float:
+        """Bhattacharyya coefficient of a region's colour distribution (sums to 1, pooled as
+        this model) and the example's at ``exposure`` (None: gain 1)."""
+        k = self.unit if exposure is None else exposure
+        return float(self._sqrt_q[k] @ np.sqrt(np.asarray(region_hist, np.float64)))
 
     def back_project(self, image: NDArray[np.uint8], frame_hist: ArrayLike | None = None
                      ) -> NDArray[np.float32]:
-        """The (H, W) posterior map of a BGR frame (plain numpy; the detector uses :meth:`lut`
-        with its own look-up)."""
+        """The (H, W) posterior map of a BGR frame at the frame's :meth:`select`-ed exposure
+        (plain numpy; the detector uses :meth:`lut` with its own look-up)."""
         idx = quantize_bgr(image)
         counts = np.bincount(idx.ravel(), minlength=NBINS) if frame_hist is None else frame_hist
-        return self.lut(counts)[idx]
+        return self.lut(counts, self.select(counts))[idx]
 
 
 def region_histogram(image: NDArray[np.uint8], corners_px: NDArray[np.floating], *,

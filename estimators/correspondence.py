@@ -384,7 +384,16 @@ class CornerPoseEstimator:
         # Stage 1: a couple of LM iterations from every start (the initial residual is a poor
         # guide: a start 5 deg off in yaw can look worse than a wrong branch); stage 2: polish
         # the best ones until one fits to ~good_fit_px.
-        coarse = [sol for x in starts if (sol := polish(x, 10)) is not None]
+        # The PnP start goes first: when a few iterations from it already fit to ~good_fit_px
+        # the other starts are not tried (~0.2 ms each, 12 of them).
+        coarse = []
+        for k, x in enumerate(starts):
+            sol = polish(x, 10)
+            if sol is None:
+                continue
+            coarse.append(sol)
+            if k == 0 and start is not None and sol.cost < good_cost:
+                break
         coarse.sort(key=lambda sol: sol.cost)
         best_sol = None
         for c0 in coarse[: self.max_polished_starts]:

@@ -117,7 +117,7 @@ class MissionRunner:
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
         self.record_all, self.on_processed = record_all, on_processed or (lambda _f, _t: None)
         self.machine = ApproachMachine(on_change=self._on_state_change)
-        self.perception = Perception(params, cfg.target)
+        self.perception = Perception(params, cfg.target, thumbnails=on_processed is not None)
         self.track = TargetTracking(cfg, params, self.models, mission_log)
         self.guidance = gd.Guidance(gd.GuidanceConfig.of(cfg, params))
         self.actuator = Actuator(cfg, params, self.vehicle, clock, mission_log, self.guidance,

@@ -72,6 +72,10 @@ class DTDMIConfig(DetectorConfig):
         "block contrast: weight of L* against a*, b* (CIE L*a*b*)"))
     block_unit: float | None = Field(None, gt=0, description=(
         "block contrast: L*a*b* distance that counts as 1 in S_s"))
+    block_downscale: int | None = Field(None, ge=1, le=8, description=(
+        "block contrast: computed on the processing-resolution frame reduced by this (area "
+        "average; the blocks keep their size relative to the diagonal) and upsampled "
+        "(bilinear); None: as the preset says (aerial: 2, the others: 1)"))
     block_fusion: Literal["static", "add"] | None = Field(None, description=(
         "block contrast: part of S_s before Eq. (15) (static), or added to S after it (add)"))
     normalize_scales: bool | None = None
@@ -101,6 +105,11 @@ class DTDMIConfig(DetectorConfig):
         "model, its back-projection and the re-ranking histograms (tolerance to shading); "
         "false: the 4096 bins as they are (finer colour discrimination); None: as the preset "
         "says"))
+    appearance_exposure_span: float | None = Field(None, ge=1, le=4, description=(
+        "with an appearance image: the colour model holds the example's histograms at exposure "
+        "gains from 1/this to this, and each frame uses the gain at which the example's colours "
+        "are most present in it (tolerance to light and exposure); 1: the example's colours as "
+        "they are; None: as the preset says (aerial: 1.5; the others: 1)"))
     appearance_track_weight: float | None = Field(None, ge=0, le=1, description=(
         "with an appearance image: the map attenuated away from the previous frame's best "
         "detection, S x ((1 - this) + this x G), G a Gaussian of appearance_track_sigma_frac; "
@@ -169,11 +178,13 @@ class Resolved:
     block_weight: float = 0.0
     block_radius_frac: float = 0.0055
     block_surround: float = 3.0
+    block_downscale: int = 1
     block_luminance_weight: float = 0.3
     block_unit: float = 20.0
     block_fusion: str = "static"
     ego_motion: str = "none"
     appearance_pool: bool = True
+    appearance_exposure_span: float = 1.0
     appearance_rank_exponent: float = 4.0
     appearance_track_weight: float = 0.0
     colour_propagation: float = 0.0
@@ -206,10 +217,11 @@ PRESETS: dict[str, Resolved] = {
     "aerial": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.003, 0.0, "absolute",
                        3.0, luminance_weight=0.6, spread_sigma_frac=0.1, contrast_level="bin",
                        fusion="max", dynamic_gain=2.5, colour_weight=1.0, block_weight=1.0,
-                       block_radius_frac=0.0055, block_luminance_weight=0.6,
+                       block_radius_frac=0.0055, block_luminance_weight=0.6, block_downscale=2,
                        ego_motion="homography", appearance_pool=False,
                        appearance_rank_exponent=8.0, appearance_peak_fraction=0.7,
-                       appearance_floor=30, appearance_track_weight=0.3),
+                       appearance_floor=30, appearance_track_weight=0.3,
+                       appearance_exposure_span=1.5),
 }
 
 #: Each preset's ``regions`` defaults (given keys override them; regions.py has the meaning).

@@ -46,17 +46,22 @@ from eaglemission.detectors.regions import find_regions
 from eaglemission.types import Detection, DetectionResult, Frame, Saliency, TargetPrior
 
 
-def appearance_rerank(dets: tuple[Detection, ...], image: np.ndarray, q: np.ndarray,
-                      gamma: float, keep: int, *, pool: bool = True) -> tuple[Detection, ...]:
-    """Detections re-ranked by ``score x BC^gamma`` (BC: Bhattacharyya coefficient of the
-    region's colour histogram, pooled over neighbouring bins if ``pool`` as ``q`` was, and the
-    example's ``q``), the best ``keep``, that product as their score
-    (:mod:`eaglemission.detectors.appearance`)."""
-    from eaglemission.detectors.appearance import bhattacharyya, region_histogram
+def appearance_rerank(dets: tuple[Detection, ...], image: np.ndarray, model: Any,
+                      gamma: float, keep: int, scale: float = 1.0,
+                      exposure: int | None = None) -> tuple[Detection, ...]:
+    """Detections re-ranked by ``score x BC^gamma`` (BC: the Bhattacharyya coefficient of the
+    region's colour histogram, pooled as the model's, and the example's at the frame's
+    ``exposure``, :meth:`..appearance.AppearanceModel.match`), the best ``keep``, that
+    product as their score (:mod:`eaglemission.detectors.appearance`). ``image`` may be the
+    frame reduced by ``scale`` (the detector's processing resolution: the histograms cost
+    ``scale^2`` of the full frame's)."""
+    from eaglemission.detectors.appearance import region_histogram
 
-    ranked = sorted(
-        ((d.score * bhattacharyya(region_histogram(image, d.corners_px, pool=pool), q) ** gamma,
-          k) for k, d in enumerate(dets)), reverse=True)
+    def bc(d: Detection) -> float:
+        corners = d.corners_px if scale == 1.0 else np.asarray(d.corners_px) * scale
+        return float(model.match(region_histogram(image, corners, pool=model.pool), exposure))
+
+    ranked = sorted(((d.score * bc(d) ** gamma, k) for k, d in enumerate(dets)), reverse=True)
     return tuple(replace(dets[k], score=float(s)) for s, k in ranked[:keep])
 
 
@@ -79,7 +84,8 @@ class DTDMIDetector(SaliencyDetector):
 
             self.engine.set_appearance(AppearanceModel.from_image(
                 self.appearance, prior=self.config.appearance_prior,
-                pool=self.engine.r.appearance_pool))
+                pool=self.engine.r.appearance_pool,
+                exposure_span=self.engine.r.appearance_exposure_span))
 
     def detect(self, frame: Frame, prior: TargetPrior | None = None) -> DetectionResult:
         """Regions of the map. With an appearance image: the map is attenuated away from the
@@ -103,8 +109,12 @@ class DTDMIDetector(SaliencyDetector):
             wide = cfg.model_copy(update={
                 "max_detections": max(cfg.max_detections, self.config.appearance_candidates)})
             dets, threshold = find_regions(sal, wide, prior, camera_id=frame.camera_id)
-            kept = appearance_rerank(dets, validate_image(frame.image), model.q, gamma,
-                                     cfg.max_detections, pool=model.pool)
+            # the colours at the processing resolution (the map's own)
+            work = self.engine.work
+            full = validate_image(frame.image)
+            scale = 1.0 if work is None else work.shape[1] / full.shape[1]
+            kept = appearance_rerank(dets, full if work is None else work, model, gamma,
+                                     cfg.max_detections, scale, self.engine.exposure)
         else:
             kept, threshold = find_regions(sal, cfg, prior, camera_id=frame.camera_id)
         self.track_px = kept[0].center_px if kept else None

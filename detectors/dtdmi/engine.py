@@ -58,6 +58,8 @@ class DTDMIEngine:
             backend=cfg.backend, floor=cfg.dynamic_floor))
         self._shape: tuple[int, int] | None = None
         self.appearance: Any = None  # AppearanceModel (detectors/appearance.py) or None
+        self.work: np.ndarray | None = None  # the last frame at the processing resolution
+        self.exposure: int | None = None  # the appearance model's exposure for the last frame
         # S_s as a weighted sum of cues, the max fusion or an appearance image: the general
         # (unstreamed) path of _general_saliency
         self.general = (self.r.block_weight > 0 or self.r.fusion == "max"
@@ -330,7 +332,7 @@ class DTDMIEngine:
         if blk is not None:  # block_fusion "add": after Eq. (15)
             s = blk if s is None else np.add(s, blk, out=s)
         if self.appearance is not None:
-            a_lut = self.appearance.lut(sampled_colour_hist(work) if hist is None else hist)
+            a_lut, self.exposure = appearance_lut(self.appearance, work, hist)
             weight = float(self.cfg.appearance_saliency_weight)
             if s is None:
                 self._paint(work, a_lut, out)
@@ -373,7 +375,7 @@ class DTDMIEngine:
             h, w = bgr.shape[:2]
             work = cv2.resize(bgr, (max(8, w // cfg.downscale), max(8, h // cfg.downscale)),
                               interpolation=cv2.INTER_AREA)
-        work = np.ascontiguousarray(work)
+        work = self.work = np.ascontiguousarray(work)
         shape = (work.shape[0], work.shape[1])
         if shape != self._shape:
             self._allocate(shape)
@@ -432,6 +434,16 @@ def scale_compression(normalize: bool, top: float) -> float:
     if not normalize:
         return 1.0
     return 1.0 / top if top > 0 else 1.0
+
+
+def appearance_lut(model: Any, work: np.ndarray, hist: np.ndarray | None
+                   ) -> tuple[np.ndarray, int]:
+    """The appearance model's per-bin back-projection for a frame (``hist``: its sampled colour
+    counts, None: counted here) and the exposure it was taken at
+    (:meth:`..appearance.AppearanceModel.select`)."""
+    hist = sampled_colour_hist(work) if hist is None else hist
+    exposure = model.select(hist)
+    return model.lut(hist, exposure), exposure
 
 
 def sampled_colour_hist(bgr: np.ndarray) -> np.ndarray:

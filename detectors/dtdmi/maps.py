@@ -78,23 +78,35 @@ def add_block_cue(work: np.ndarray, r: Any, s: np.ndarray | None,
     """The block contrast cue of ``work`` times ``block_weight / block_unit`` (``r``: the
     engine's resolved preset values): added to ``s`` (S_s, ``block_fusion: static``) or
     returned as its own plane (``add``). ``plane``: a preallocated (H, W) float32 plane for
-    the fused kernel (:func:`block_contrast_into`); None: the plain numpy functions. Returns
+    the fused kernel (:func:`block_contrast_into`); None: the plain numpy functions. With
+    ``block_downscale`` d > 1 the cue is computed on ``work`` reduced by d (area average; the
+    block radius is a fraction of that frame's diagonal) and upsampled bilinearly. Returns
     (s, block plane or None)."""
     scale = r.block_weight / r.block_unit
+    h, w = work.shape[:2]
+    d = int(r.block_downscale)
+    src = work
+    if d > 1:
+        src = cv2.resize(work, (max(1, w // d), max(1, h // d)), interpolation=cv2.INTER_AREA)
     into = r.block_fusion == "static" and s is not None
-    radius = round(r.block_radius_frac * float(np.hypot(work.shape[0], work.shape[1])))
+    radius = round(r.block_radius_frac * float(np.hypot(src.shape[0], src.shape[1])))
+    reduced = src is not work
     if plane is not None:  # one fused pass
-        target = s if into and s is not None else plane
-        block_contrast_into(work, r.block_luminance_weight, radius, r.block_surround, scale,
-                            target, accumulate=into)
+        target = np.zeros(src.shape[:2], np.float32) if reduced else (
+            s if into and s is not None else plane)
+        block_contrast_into(src, r.block_luminance_weight, radius, r.block_surround, scale,
+                            target, accumulate=into and not reduced)
     else:
         from eaglemission.detectors.dtdmi.equations_static import block_contrast_cue
 
-        target = block_contrast_cue(lab_features(work, r.block_luminance_weight), radius,
+        target = block_contrast_cue(lab_features(src, r.block_luminance_weight), radius,
                                     r.block_surround)
         target *= np.float32(scale)
-        if into and s is not None:
-            target = np.add(s, target, out=s)
+    if reduced:
+        up = plane if plane is not None and not into else np.empty((h, w), np.float32)
+        target = cv2.resize(target, (w, h), dst=up, interpolation=cv2.INTER_LINEAR)
+    if into and s is not None and target is not s:
+        target = np.add(s, target, out=s)
     if r.block_fusion == "static":
         return target, None
     return s, target

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from eaglemission.detectors.appearance import (
     AppearanceModel,
     appearance_posterior,
     border_mask,
+    exposure_gains,
     kernel_weights,
+    region_histogram,
     target_histogram,
 )
 from eaglemission.detectors.base import validate_appearance
@@ -133,3 +136,63 @@ def test_appearance_model_ignores_a_frame_without_the_colour(rng):
     frame = _ground(rng)
     hist = np.bincount(quantize_bgr(frame).ravel(), minlength=NBINS)
     assert float(model.lut(hist).max()) < 1e-3 or model.back_project(frame).max() < 0.05
+
+
+def test_exposure_gains_cover_the_span_in_steps_under_one_bin():
+    assert exposure_gains(1.0).tolist() == [1.0]
+    g = exposure_gains(1.5)
+    assert g[0] == pytest.approx(1 / 1.5) and g[-1] == pytest.approx(1.5)
+    assert np.any(np.isclose(g, 1.0)) and len(g) % 2 == 1
+    assert np.all(g[1:] / g[:-1] <= 1.05 + 1e-12)
+    with pytest.raises(ValueError, match="span"):
+        exposure_gains(0.9)
+    with pytest.raises(InputError, match="exposure span"):
+        AppearanceModel.from_image(np.full((8, 8, 3), RED, np.uint8), exposure_span=5.0)
+
+
+@pytest.mark.parametrize("gain", [0.7, 0.85, 1.15, 1.4])
+def test_exposure_span_finds_the_target_under_other_light(rng, gain):
+    """The example is taken at one exposure; the frame's light is dimmer or brighter. The
+    exact colours miss the target (a 4-bit bin is 16 levels); the span's model does not, and
+    still ignores the ground."""
+    frame = _ground(rng)
+    frame[100:130, 200:240] = RED
+    crop = frame[95:135, 195:245].copy()
+    dim = cv2.convertScaleAbs(frame, alpha=gain)
+    exact = AppearanceModel.from_image(crop, prior=0.1, pool=False)
+    spanned = AppearanceModel.from_image(crop, prior=0.1, pool=False, exposure_span=1.5)
+    on, off = np.zeros(frame.shape[:2], bool), np.ones(frame.shape[:2], bool)
+    on[104:126, 204:236] = True
+    off[90:140, 190:250] = False
+    assert np.median(exact.back_project(dim)[on]) < 0.05
+    assert np.median(spanned.back_project(dim)[on]) > 0.2
+    assert np.percentile(spanned.back_project(dim)[off], 99) < 0.05
+    # the frame's exposure is found, and a region of the dimmed target matches the example there
+    counts = np.bincount(quantize_bgr(dim).ravel(), minlength=NBINS)
+    k = spanned.select(counts)
+    assert abs(np.log(exposure_gains(1.5)[k] / gain)) < np.log(1.1)
+    region = np.array([[200.0, 100.0], [239.0, 100.0], [239.0, 129.0], [200.0, 129.0]])
+    hist = region_histogram(dim, region, pool=False)
+    assert spanned.match(hist, k) > 0.9 > exact.match(hist) + 0.3
+
+
+def test_exposure_stays_at_gain_one_in_the_example_s_light(rng):
+    frame = _ground(rng)
+    frame[100:130, 200:240] = RED
+    spanned = AppearanceModel.from_image(frame[95:135, 195:245].copy(), prior=0.1, pool=False,
+                                         exposure_span=1.5)
+    counts = np.bincount(quantize_bgr(frame).ravel(), minlength=NBINS)
+    assert spanned.select(counts) == spanned.unit
+    assert exposure_gains(1.5)[spanned.unit] == pytest.approx(1.0)
+    np.testing.assert_array_equal(spanned.q, spanned.q_exposures[spanned.unit])
+
+
+def test_exposure_span_reaches_the_model_from_the_config():
+    crop = np.full((12, 12, 3), RED, np.uint8)
+    det = registry.load("detectors", "dtdmi", {"preset": "aerial"}, appearance=crop)
+    assert det.engine.appearance.q_exposures.shape == (len(exposure_gains(1.5)), NBINS)
+    det1 = registry.load("detectors", "dtdmi", {"preset": "aerial",
+                                                "appearance_exposure_span": 1.0}, appearance=crop)
+    assert det1.engine.appearance.q_exposures.shape == (1, NBINS)
+    default = registry.load("detectors", "dtdmi", {}, appearance=crop)
+    assert default.engine.appearance.q_exposures.shape == (1, NBINS)

@@ -92,3 +92,32 @@ def test_cv2_reflect_padding_is_the_box_filters_border():
     padded = cv2.copyMakeBorder(img, 5, 5, 5, 5, cv2.BORDER_REFLECT)
     small = cv2.copyMakeBorder(img, 2, 2, 2, 2, cv2.BORDER_REFLECT)
     np.testing.assert_array_equal(padded[3:-3, 3:-3], small)
+
+
+@pytest.mark.parametrize("fusion", ["static", "add"])
+@pytest.mark.parametrize("fused", [True, False])
+def test_block_cue_at_a_reduced_resolution(fusion, fused):
+    """``block_downscale`` 2: the cue of the frame halved (area average, the radius from the
+    halved diagonal), upsampled bilinearly; both backends, both fusions."""
+    from dataclasses import replace
+
+    from eaglemission.detectors.dtdmi.config import resolve
+    from eaglemission.detectors.dtdmi.maps import add_block_cue
+
+    r = replace(resolve(DTDMIConfig(preset="aerial")), block_fusion=fusion)
+    assert r.block_downscale == 2
+    img = _image(np.random.RandomState(5), 96, 128)
+    half = cv2.resize(img, (64, 48), interpolation=cv2.INTER_AREA)
+    radius = round(r.block_radius_frac * float(np.hypot(48, 64)))
+    cue = block_contrast_cue(lab_features(half, r.block_luminance_weight), radius,
+                             r.block_surround) * np.float32(r.block_weight / r.block_unit)
+    expected = cv2.resize(cue, (128, 96), interpolation=cv2.INTER_LINEAR)
+    base = np.random.RandomState(2).rand(96, 128).astype(np.float32)
+    plane = np.zeros((96, 128), np.float32) if fused else None
+    s, blk = add_block_cue(img, r, base.copy(), plane)
+    if fusion == "static":
+        assert blk is None
+        np.testing.assert_allclose(s, base + expected, rtol=1e-4, atol=1e-5)
+    else:
+        np.testing.assert_allclose(s, base)
+        np.testing.assert_allclose(blk, expected, rtol=1e-4, atol=1e-5)

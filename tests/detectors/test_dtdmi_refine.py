@@ -91,6 +91,7 @@ def test_presets_keep_their_behaviour_unless_they_choose_a_refinement():
     assert aerial.appearance_pool is False and aerial.appearance_rank_exponent == 8.0
     assert aerial.colour_propagation == 0.0 and aerial.appearance_track_weight == 0.3
     assert aerial.appearance_floor == 30 and aerial.appearance_peak_fraction == 0.7
+    assert aerial.appearance_exposure_span == 1.5
     assert resolve(DTDMIConfig()).colour_propagation == 0.5  # default: chosen on DAVIS
     assert resolve(DTDMIConfig(preset="aerial",
                                appearance_rank_exponent=0)).appearance_rank_exponent == 0
@@ -114,9 +115,12 @@ def test_unpooled_appearance_model_keeps_the_exact_bins():
     crop = np.zeros((12, 12, 3), np.uint8)
     crop[...] = RED
     crop[:, 6:] = (200, 90, 20)
-    pooled = registry.load("detectors", "dtdmi", {"preset": "aerial", "appearance_pool": True},
+    pooled = registry.load("detectors", "dtdmi", {"preset": "aerial", "appearance_pool": True,
+                                                  "appearance_exposure_span": 1.0},
                            appearance=crop)
-    exact = registry.load("detectors", "dtdmi", {"preset": "aerial"}, appearance=crop)
+    exact = registry.load("detectors", "dtdmi", {"preset": "aerial",
+                                                 "appearance_exposure_span": 1.0},
+                          appearance=crop)
     assert pooled.engine.appearance.pool and not exact.engine.appearance.pool
     bins = set(np.unique(quantize_bgr(crop)).tolist())
     assert set(np.flatnonzero(exact.engine.appearance.q).tolist()) <= bins
@@ -171,6 +175,7 @@ def test_following_needs_a_previous_detection(rng):
 
 @pytest.mark.parametrize(("params", "image", "fraction"), [
     ({"preset": "aerial"}, True, 0.7),       # the preset's, with an image
+    ({"preset": "aerial", "regions": {"peak_fraction": 0.6}}, True, 0.7),  # the image's wins
     ({"preset": "aerial"}, False, 0.8),      # regions.peak_fraction without one
     ({"preset": "aerial", "appearance_peak_fraction": 0.9}, True, 0.9),
     ({"preset": "aerial", "regions": {"peak_fraction": 0.6}}, False, 0.6),

@@ -65,13 +65,21 @@ def scene(sitl_config):
     return model, target, top, det, state, frame
 
 
-def _perceive(scene, coarse, fine, *, fitter=True, params=None, estimator="fine"):
+def _perceive(scene, coarse, fine, *, fitter=True, params=None, estimator="fine",
+              thumbnails=True):
     model, target, top, det, state, frame = scene
     p = params or ApproachConfig(colour_check=False, colour_track=False)
     tools = Tools(OneDetection(det), coarse, fine,
                   TopPlaneFitter(target=target) if fitter else None, None)
     req = Request(frame, model, state, estimator, None, True, None, PlaneState(0.0, 0.04))
-    return Perception(p, target).perceive(req, tools)
+    return Perception(p, target, thumbnails=thumbnails).perceive(req, tools)
+
+
+def test_the_saliency_thumbnail_is_made_only_for_a_recording(scene) -> None:
+    est = FixedEstimator((0.0, 0.0, 0.0))
+    m = _perceive(scene, est, est)
+    assert m.saliency_thumb is not None and m.saliency_thumb.dtype == np.uint8
+    assert _perceive(scene, est, est, thumbnails=False).saliency_thumb is None
 
 
 def test_a_fine_estimate_refined_by_the_plane_fit(scene) -> None:
