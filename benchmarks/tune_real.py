@@ -78,7 +78,7 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 DATA = {"uav": SHARED / "uav_tracking", "davis": SHARED / "video_saliency" / "DAVIS2016"}
 FPS = {"uav": 10.0, "davis": 24.0}  # UAV123@10fps; the UAVDT/DTB70 clips are treated alike
-VERSION = 11  # bump when the detector code changes what a configuration computes
+VERSION = 12  # bump when the detector code changes what a configuration computes
 
 
 # ---------------------------------------------------------------------------------------------

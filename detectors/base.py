@@ -57,17 +57,23 @@ class SaliencyDetector:
         self._reset()
 
     def saliency(self, frame: Frame) -> Saliency:
-        image = validate_image(frame.image)
+        image = self._frame_image(frame)
         shape = (image.shape[0], image.shape[1])
-        if self._shape is not None and shape != self._shape:
-            self._reset()  # resolution change: temporal state no longer applies
-        self._shape = shape
         sal = self._saliency(image, frame)
         if sal.shape != shape or sal.dtype != np.float32:
             raise RuntimeError(
                 f"{type(self).__name__}._saliency returned {sal.dtype} {sal.shape}, "
                 f"expected float32 {shape}")
         return sal
+
+    def _frame_image(self, frame: Frame) -> np.ndarray:
+        """The frame's validated image; a change of resolution drops the temporal state."""
+        image = validate_image(frame.image)
+        shape = (image.shape[0], image.shape[1])
+        if self._shape is not None and shape != self._shape:
+            self._reset()  # resolution change: temporal state no longer applies
+        self._shape = shape
+        return image
 
     def detect(self, frame: Frame, prior: TargetPrior | None = None) -> DetectionResult:
         sal = self.saliency(frame)

@@ -22,6 +22,7 @@ Conventions (docs/detectors.md, "Regions"):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Any, Literal
@@ -226,3 +227,35 @@ def find_regions(
             hull_px=outline_hull(cnt) if cfg.mbr_pixel_edges else outline_hull(cnt, 0.0),
         ))
     return tuple(found), t / 255.0
+
+
+def reduced_prior(prior: TargetPrior | None, sx: float, sy: float) -> TargetPrior | None:
+    """``prior`` for a map reduced by ``sx`` x ``sy`` (areas divided by ``sx sy``)."""
+    if prior is None:
+        return None
+    return dataclasses.replace(prior, min_area_px=prior.min_area_px / (sx * sy),
+                               max_area_px=prior.max_area_px / (sx * sy))
+
+
+def to_frame_pixels(det: Detection, sx: float, sy: float) -> Detection:
+    """A detection found on a map reduced by ``sx`` x ``sy`` (area average: map pixel ``k``
+    covers frame pixels ``sx k`` to ``sx k + sx - 1``) in the frame's pixels: a point ``u``
+    goes to ``sx u + (sx - 1) / 2`` (pixel centres and edges alike), sizes scale by ``sx``
+    (``sy``), the area by ``sx sy`` and the score (mean x sqrt(pixel count)) by
+    ``sqrt(sx sy)``."""
+    off = np.array([(sx - 1.0) / 2.0, (sy - 1.0) / 2.0])
+    k = np.array([sx, sy])
+    corners = order_corners(np.asarray(det.corners_px) * k + off)
+    hull = None if det.hull_px is None else np.asarray(det.hull_px) * k + off
+    long_px, short_px = det.size_px
+    if sx != sy:  # an anisotropic reduction: measure the scaled rectangle's sides
+        sides = np.linalg.norm(np.diff(np.vstack([corners, corners[:1]]), axis=0), axis=1)
+        long_px, short_px = float(max(sides[0], sides[1])), float(min(sides[0], sides[1]))
+    else:
+        long_px, short_px = long_px * sx, short_px * sx
+    cu, cv = det.center_px
+    return dataclasses.replace(
+        det, score=det.score * math.sqrt(sx * sy),
+        center_px=(float(sx * cu + off[0]), float(sy * cv + off[1])), corners_px=corners,
+        size_px=(long_px, short_px), angle_deg=long_side_angle_deg(corners),
+        area_px=det.area_px * sx * sy, hull_px=hull)

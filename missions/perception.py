@@ -226,6 +226,17 @@ def select_detection(result: DetectionResult, predicted_px: tuple[float, float] 
     return dets[0]
 
 
+def regions_agree(a: Detection, b: Detection) -> bool:
+    """Each region's centre lies inside the other's MBR (the same object)."""
+    return (inside_polygon(a.center_px, b.corners_px)
+            and inside_polygon(b.center_px, a.corners_px))
+
+
+def inside_polygon(point_px: tuple[float, float], corners_px: NDArray[np.float64]) -> bool:
+    poly = np.asarray(corners_px, dtype=np.float32).reshape(-1, 1, 2)
+    return cv2.pointPolygonTest(poly, (float(point_px[0]), float(point_px[1])), False) >= 0
+
+
 def _prior(camera_id: str, wide_id: str = "wide") -> TargetPrior:
     return TargetPrior(min_area_px=12.0 if camera_id == wide_id else 100.0)
 
@@ -272,9 +283,15 @@ class Perception:
         track = (req.close_range and p.colour_track and tracker is not None
                  and track_px is not None and bool(np.isfinite(track_px).all()))
         tracked = False
-        if det is None and track and tracker is not None and track_px is not None:
-            det = tracker.track(frame, track_px)
-            tracked = det is not None
+        if track and tracker is not None and track_px is not None and (
+                det is None or req.estimator == "fine"):
+            # close range: the target colour's own region, when it agrees with the detector's
+            # (the fine estimator fits the box to a region's outline: the colour region follows
+            # the target's edges, a saliency region's threshold need not, and a refused fit
+            # costs a second one)
+            alt = tracker.track(frame, track_px)
+            if alt is not None and (det is None or regions_agree(alt, det)):
+                det, tracked = alt, True
         out = self._estimate(det, req, tools, tracked)
         if (track and not tracked and det is not None and out[0] is None
                 and tracker is not None and track_px is not None):

@@ -36,12 +36,13 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
 from eaglemission.detectors.base import SaliencyDetector, validate_image
 from eaglemission.detectors.dtdmi.config import DTDMIConfig
 from eaglemission.detectors.dtdmi.engine import DTDMIEngine
 from eaglemission.detectors.dtdmi.refine import spotlight_factors, spotlit_saliency
-from eaglemission.detectors.regions import find_regions
+from eaglemission.detectors.regions import find_regions, reduced_prior, to_frame_pixels
 
 from eaglemission.types import Detection, DetectionResult, Frame, Saliency, TargetPrior
 
@@ -92,32 +93,51 @@ class DTDMIDetector(SaliencyDetector):
         previous frame's best detection (``appearance_track_weight``,
         :func:`.refine.spotlit_saliency`), and the ``appearance_candidates`` best regions are
         re-ranked by ``score x BC^appearance_rank_exponent`` (their colour histogram against
-        the example's, :func:`..appearance.bhattacharyya`) and ``regions.max_detections``
-        kept, with that product as their score."""
+        the example's, :meth:`..appearance.AppearanceModel.match`) and
+        ``regions.max_detections`` kept, with that product as their score. With ``downscale``
+        > 1 (and no colour propagation) all of this runs on the map at the processing
+        resolution, which has no finer detail than that, and the detections are mapped to the
+        frame's pixels (:func:`..regions.to_frame_pixels`); the map is upsampled for the
+        result."""
         model = self.engine.appearance
         if model is None:
             return super().detect(frame, prior)
-        sal = self.follow(self.saliency(frame), self.track_px)
+        image = self._frame_image(frame)
+        h, w = image.shape[:2]
+        # the map, following and regions at the processing resolution (the map has no finer
+        # detail: it is upsampled once, for the result); the detections in frame pixels
+        native = self.config.downscale > 1 and self.engine.r.colour_propagation == 0
+        self.engine.native = native
+        try:
+            sal = self.engine.saliency(image, frame.timestamp_ns)
+        finally:
+            self.engine.native = False
+        sx, sy = w / sal.shape[1], h / sal.shape[0]
+        track = None if self.track_px is None else (
+            (self.track_px[0] - (sx - 1) / 2) / sx, (self.track_px[1] - (sy - 1) / 2) / sy)
+        sal = self.follow(sal, track)
         cfg = self.config.regions
         r = self.engine.r
+        update: dict[str, Any] = {"min_area_px": cfg.min_area_px / (sx * sy)}
         if r.appearance_peak_fraction is not None:
-            cfg = cfg.model_copy(update={"peak_fraction": r.appearance_peak_fraction})
+            update["peak_fraction"] = r.appearance_peak_fraction
         if r.appearance_floor is not None:
-            cfg = cfg.model_copy(update={"adaptive_floor": r.appearance_floor})
-        gamma = self.engine.r.appearance_rank_exponent
+            update["adaptive_floor"] = r.appearance_floor
+        gamma = r.appearance_rank_exponent
         if gamma > 0:
-            wide = cfg.model_copy(update={
-                "max_detections": max(cfg.max_detections, self.config.appearance_candidates)})
-            dets, threshold = find_regions(sal, wide, prior, camera_id=frame.camera_id)
-            # the colours at the processing resolution (the map's own)
-            work = self.engine.work
-            full = validate_image(frame.image)
-            scale = 1.0 if work is None else work.shape[1] / full.shape[1]
-            kept = appearance_rerank(dets, full if work is None else work, model, gamma,
-                                     cfg.max_detections, scale, self.engine.exposure)
-        else:
-            kept, threshold = find_regions(sal, cfg, prior, camera_id=frame.camera_id)
+            update["max_detections"] = max(cfg.max_detections, self.config.appearance_candidates)
+        wide = cfg.model_copy(update=update)
+        dets, threshold = find_regions(sal, wide, reduced_prior(prior, sx, sy),
+                                       camera_id=frame.camera_id)
+        if gamma > 0:
+            work = self.engine.work if native else image
+            dets = appearance_rerank(dets, image if work is None else work, model, gamma,
+                                     cfg.max_detections, 1.0, self.engine.exposure)
+        kept = tuple(to_frame_pixels(d, sx, sy) for d in dets) if native else dets
         self.track_px = kept[0].center_px if kept else None
+        if native:
+            sal = np.asarray(cv2.resize(sal, (w, h), interpolation=cv2.INTER_LINEAR),
+                             dtype=np.float32)
         return DetectionResult(sal, kept, frame.timestamp_ns, frame.camera_id, frame.seq,
                                threshold)
 

@@ -60,6 +60,7 @@ class DTDMIEngine:
         self.appearance: Any = None  # AppearanceModel (detectors/appearance.py) or None
         self.work: np.ndarray | None = None  # the last frame at the processing resolution
         self.exposure: int | None = None  # the appearance model's exposure for the last frame
+        self.native = False  # general path: the map at the processing resolution (no resize)
         # S_s as a weighted sum of cues, the max fusion or an appearance image: the general
         # (unstreamed) path of _general_saliency
         self.general = (self.r.block_weight > 0 or self.r.fusion == "max"
@@ -359,13 +360,9 @@ class DTDMIEngine:
         """float32 (H, W) map in [0, 1] at the resolution of ``bgr``."""
         sal = self._map(bgr, timestamp_ns)
         if self.r.colour_propagation > 0:
-            sal = self._propagate(sal, bgr)
+            sal = propagate_by_colour(sal, bgr, self.r.colour_propagation,
+                                      self._k if self.numba else None, self._paint)
         return sal
-
-    def _propagate(self, sal: np.ndarray, bgr: np.ndarray) -> np.ndarray:
-        """:func:`propagate_by_colour` with this engine's kernels."""
-        return propagate_by_colour(sal, bgr, self.r.colour_propagation,
-                                   self._k if self.numba else None, self._paint)
 
     def _map(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
         """The map before the refinements of :mod:`.refine`."""
@@ -403,8 +400,9 @@ class DTDMIEngine:
 
     def _finish(self, out: np.ndarray, top: float, bgr: np.ndarray,
                 shape: tuple[int, int]) -> np.ndarray:
-        """Smoothing, the output scale and the resize back to the frame's resolution."""
-        full_shape = (bgr.shape[0], bgr.shape[1])
+        """Smoothing, the output scale and the resize back to the frame's resolution (not with
+        ``native``)."""
+        full_shape = shape if self.native else (bgr.shape[0], bgr.shape[1])
         if self.r.blur_sigma_frac > 0:
             return smooth_mapped(out, self.r.blur_sigma_frac * float(np.hypot(*shape)),
                                  full_shape, self._to_unit)

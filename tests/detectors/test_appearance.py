@@ -196,3 +196,26 @@ def test_exposure_span_reaches_the_model_from_the_config():
     assert det1.engine.appearance.q_exposures.shape == (1, NBINS)
     default = registry.load("detectors", "dtdmi", {}, appearance=crop)
     assert default.engine.appearance.q_exposures.shape == (1, NBINS)
+
+
+def test_with_an_image_the_regions_run_at_the_processing_resolution(rng):
+    """``downscale`` 2: the detector finds its regions on the half-resolution map and reports
+    them in the frame's pixels: the same rectangles as on the full-resolution map it returns."""
+    from eaglemission.detectors.regions import find_regions
+
+    frame = _ground(rng, 480, 640)
+    frame[200:236, 300:360] = RED
+    crop = frame[195:241, 295:365].copy()
+    det = registry.load("detectors", "dtdmi", {"preset": "aerial", "downscale": 2},
+                        appearance=crop)
+    for k in range(2):
+        res = det.detect(Frame(frame, 1_000_000_000 + k * 33_000_000, "w", k))
+    assert res.saliency.shape == (480, 640) and res.best is not None
+    u, v = res.best.center_px
+    assert 300 <= u <= 360 and 200 <= v <= 236
+    r = det.engine.r
+    cfg = det.config.regions.model_copy(update={
+        "peak_fraction": r.appearance_peak_fraction, "adaptive_floor": r.appearance_floor})
+    full, _ = find_regions(res.saliency, cfg)
+    assert full
+    np.testing.assert_allclose(res.best.corners_px, full[0].corners_px, atol=2.0)

@@ -8,7 +8,7 @@ import pytest
 from eaglemission.detectors.appearance import AppearanceModel
 from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
 from eaglemission.detectors.dtdmi.config import resolve
-from eaglemission.detectors.dtdmi.engine import DTDMIEngine
+from eaglemission.detectors.dtdmi.engine import DTDMIEngine, propagate_by_colour
 from eaglemission.detectors.dtdmi.refine import (
     colour_mean_saliency,
     propagated_saliency,
@@ -73,7 +73,7 @@ def test_colour_propagation_spreads_the_map_over_the_colour(backend):
     sal[:20, :30] = 1.0
     eng = DTDMIEngine(DTDMIConfig(colour_propagation=0.5, backend=backend))
     eng.saliency(img, 1_000_000_000)  # allocates at this resolution
-    out = eng._propagate(sal, img)
+    out = propagate_by_colour(sal, img, 0.5, eng._k if eng.numba else None, eng._paint)
     assert out[5, 5] == pytest.approx(0.75)  # 0.5 x 1 + 0.5 x 0.5
     assert out[30, 5] == pytest.approx(0.25)  # 0.5 x 0 + 0.5 x 0.5: the rest of the red half
     assert out[:, 30:].max() == 0.0

@@ -267,3 +267,30 @@ def test_shape_filters_drop_elongated_and_huge_regions():
     assert len(dets) == 2 and all(d.size_px[0] <= 5 * d.size_px[1] for d in dets)
     dets = find_regions(sal, base.model_copy(update={"max_area_frac": 0.1}))[0]
     assert len(dets) == 2 and all(d.area_px <= 0.1 * 200 * 100 for d in dets)
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 25.0])
+def test_regions_of_a_reduced_map_in_frame_pixels(angle_deg):
+    """A rectangle found on the map reduced by 2 (area average) and mapped back equals the one
+    found on the full map within a frame pixel; sizes, area and the hull follow."""
+    from eaglemission.detectors.regions import reduced_prior, to_frame_pixels
+
+    full = np.zeros((240, 320), np.float32)
+    rect = ((161.5, 100.5), (80.0, 40.0), angle_deg)
+    cv2.fillPoly(full, [np.round(cv2.boxPoints(rect)).astype(np.int32)], 1.0)
+    half = cv2.resize(full, (160, 120), interpolation=cv2.INTER_AREA)
+    cfg = RegionsConfig(fixed_threshold=127)
+    (ref,), _ = find_regions(full, cfg)
+    (small,), _ = find_regions(half, cfg, reduced_prior(TargetPrior(min_area_px=400.0), 2, 2))
+    got = to_frame_pixels(small, 2.0, 2.0)
+    np.testing.assert_allclose(got.corners_px, ref.corners_px, atol=1.5)
+    np.testing.assert_allclose(got.center_px, ref.center_px, atol=1.0)
+    np.testing.assert_allclose(got.size_px, ref.size_px, rtol=0.05)
+    assert got.area_px == pytest.approx(ref.area_px, rel=0.06)
+    assert got.score == pytest.approx(ref.score, rel=0.06)
+    assert got.hull_px is not None and got.hull_px[:, 0].min() == pytest.approx(
+        ref.hull_px[:, 0].min(), abs=1.5)
+    # the prior's areas are in frame pixels: a 1600 px^2 minimum drops the 3200 px^2 box's
+    # half-resolution region only when it is not reduced
+    assert find_regions(half, cfg, TargetPrior(min_area_px=1600.0))[0] == ()
+    assert find_regions(half, cfg, reduced_prior(TargetPrior(min_area_px=1600.0), 2, 2))[0]
