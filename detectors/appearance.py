@@ -130,10 +130,13 @@ def exposure_histograms(image: NDArray[np.uint8], span: float, *, pool: bool = T
                         border_fraction: float = BORDER_FRACTION) -> NDArray[np.float64]:
     """(G, 4096) :func:`target_histogram` of the example scaled by each of
     :func:`exposure_gains` (``span``), saturating at 255 like a camera's pixel values."""
-    return np.stack([
-        target_histogram(image if g == 1.0 else cv2.convertScaleAbs(image, alpha=float(g)),
-                         pool=pool, border_fraction=border_fraction)
-        for g in exposure_gains(span)])
+    def scaled(gain: float) -> NDArray[np.uint8]:
+        if gain == 1.0:
+            return image
+        return np.asarray(cv2.convertScaleAbs(image, alpha=gain), dtype=np.uint8)
+
+    return np.stack([target_histogram(scaled(float(g)), pool=pool, border_fraction=border_fraction)
+                     for g in exposure_gains(span)])
 
 
 def frame_histogram(hist: ArrayLike, *, pool: bool = True) -> NDArray[np.float64]:

@@ -38,7 +38,7 @@ from typing import Any, ClassVar
 
 import cv2
 import numpy as np
-from eaglemission.detectors.base import SaliencyDetector, validate_image
+from eaglemission.detectors.base import SaliencyDetector
 from eaglemission.detectors.dtdmi.config import DTDMIConfig
 from eaglemission.detectors.dtdmi.engine import DTDMIEngine
 from eaglemission.detectors.dtdmi.refine import spotlight_factors, spotlit_saliency

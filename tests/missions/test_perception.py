@@ -128,3 +128,36 @@ def test_no_estimator_no_estimate_and_a_refusal_says_why(scene) -> None:
     assert m.detection is not None and m.raw_detections == 1
     d = _perceive(scene, FixedEstimator((0, 0, 0)), FixedEstimator((0, 0, 0)), estimator=None)
     assert d.estimate is None and d.failure is None and d.provenance is None
+
+
+@pytest.mark.parametrize("paint_at_target", [True, False])
+def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
+        scene, paint_at_target) -> None:
+    """Close range, a fine estimate asked: the target colour's region (the real
+    ``colour_blob`` tracker) replaces the detector's region when each centre lies in the other
+    (one box fit on the region that follows the target's edges); a colour region elsewhere does
+    not replace it."""
+    import cv2
+    from eaglemission.detectors.colour_blob import ColourBlobTracker
+
+    model, target, top, det, state, frame = scene
+    image = frame.image.copy()
+    poly = np.asarray(det.corners_px, np.float64)
+    if not paint_at_target:
+        poly = poly + (300.0, 0.0)
+    cv2.fillPoly(image, [np.round(poly).astype(np.int32)], tuple(int(c) for c in target.color_bgr))
+    frame = Frame(image, frame.timestamp_ns, frame.camera_id, frame.seq)
+    tracker = ColourBlobTracker(target=target, camera_id="narrow")
+    tools = Tools(OneDetection(det), FixedEstimator((0.0, 0.0, 0.0)),
+                  FixedEstimator((9.0, 9.0, 9.0)), None, tracker)
+    p = ApproachConfig(colour_check=False, colour_track=True)
+    centre = tuple(float(x) for x in poly.mean(axis=0))
+    req = Request(frame, model, state, "fine", centre, True, None, PlaneState(0.0, 0.04))
+    m = Perception(p, target).perceive(req, tools)
+    assert m.colour_tracked is paint_at_target
+    assert m.detection is not None
+    if paint_at_target:
+        assert m.detection is not det and m.detection.hull_px is not None
+        np.testing.assert_allclose(m.detection.center_px, det.center_px, atol=3.0)
+    else:
+        assert m.detection is det
