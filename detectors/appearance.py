@@ -189,12 +189,14 @@ class AppearanceModel:
     pool: bool = True
     unit: int = field(init=False)
     _sqrt_q: NDArray[np.float64] = field(init=False, repr=False)
+    _prior_q: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         qs = np.atleast_2d(np.asarray(self.q_exposures, np.float64))
         object.__setattr__(self, "q_exposures", qs)
         object.__setattr__(self, "unit", len(qs) // 2)  # exposure_gains is symmetric about 1
         object.__setattr__(self, "_sqrt_q", np.sqrt(qs))
+        object.__setattr__(self, "_prior_q", self.prior * qs)
 
     @classmethod
     def from_image(cls, image: Any, *, prior: float = 0.01, pool: bool = True,
@@ -222,7 +224,7 @@ class AppearanceModel:
         if len(self.q_exposures) == 1:
             return 0
         p = frame_histogram(frame_hist, pool=self.pool)
-        found = np.minimum(self.prior * self.q_exposures, p).sum(axis=1)
+        found = np.minimum(self._prior_q, p).sum(axis=1)
         best = int(np.argmax(found))
         return best if found[best] > EXPOSURE_SWITCH * found[self.unit] else self.unit
 
@@ -259,9 +261,3 @@ def region_histogram(image: NDArray[np.uint8], corners_px: NDArray[np.floating],
         return np.zeros(NBINS)
     hist = np.bincount(quantize_bgr(image[v0:v1, u0:u1]).ravel(), minlength=NBINS)
     return frame_histogram(hist, pool=pool)
-
-
-def bhattacharyya(p: NDArray[np.floating], q: NDArray[np.floating]) -> float:
-    """Bhattacharyya coefficient ``sum sqrt(p q)`` of two distributions (1: identical, 0:
-    disjoint): how well a region's colour mixture matches the example's."""
-    return float(np.sqrt(np.asarray(p, np.float64) * np.asarray(q, np.float64)).sum())

@@ -80,9 +80,7 @@ def colour_outline(det: Detection, frame: Frame, tracker: Tracker | None, tracke
     col = det if tracked else tracker.track(frame, det.center_px)
     if col is None or col.hull_px is None:
         return None
-    mbr = np.asarray(det.corners_px, dtype=np.float32)
-    if cv2.pointPolygonTest(mbr, (float(col.center_px[0]), float(col.center_px[1])),
-                            False) < 0:
+    if not inside_polygon(col.center_px, det.corners_px):
         return None
     hull: NDArray[np.float64] = np.asarray(col.hull_px, dtype=np.float64)
     return hull
@@ -233,6 +231,7 @@ def regions_agree(a: Detection, b: Detection) -> bool:
 
 
 def inside_polygon(point_px: tuple[float, float], corners_px: NDArray[np.float64]) -> bool:
+    """``point_px`` inside or on the polygon ``corners_px`` ((N, 2) u, v)."""
     poly = np.asarray(corners_px, dtype=np.float32).reshape(-1, 1, 2)
     return cv2.pointPolygonTest(poly, (float(point_px[0]), float(point_px[1])), False) >= 0
 
@@ -283,6 +282,8 @@ class Perception:
         track = (req.close_range and p.colour_track and tracker is not None
                  and track_px is not None and bool(np.isfinite(track_px).all()))
         tracked = False
+        alt: Detection | None = None  # the colour region near track_px, looked up once
+        looked = False
         if track and tracker is not None and track_px is not None and (
                 det is None or (req.estimator == "fine" and not p.plane_from_size)):
             # close range: the target colour's own region, when it agrees with the detector's
@@ -290,14 +291,15 @@ class Perception:
             # the target's edges, a saliency region's threshold need not, and a refused fit
             # costs a second one). Not with plane_from_size: the plane measured from the colour
             # region's apparent size ended 7.8 cm off in the closed-loop test (< 5 cm asked)
-            alt = tracker.track(frame, track_px)
+            alt, looked = tracker.track(frame, track_px), True
             if alt is not None and (det is None or regions_agree(alt, det)):
                 det, tracked = alt, True
         out = self._estimate(det, req, tools, tracked)
         if (track and not tracked and det is not None and out[0] is None
                 and tracker is not None and track_px is not None):
             # the detector's region does not fit the target: try its colour region
-            alt = tracker.track(frame, track_px)
+            if not looked:
+                alt = tracker.track(frame, track_px)
             alt_out = self._estimate(alt, req, tools, True)
             if alt_out[0] is not None:
                 det, out, tracked = alt, alt_out, True

@@ -48,19 +48,18 @@ from eaglemission.types import Detection, DetectionResult, Frame, Saliency, Targ
 
 
 def appearance_rerank(dets: tuple[Detection, ...], image: np.ndarray, model: Any,
-                      gamma: float, keep: int, scale: float = 1.0,
-                      exposure: int | None = None) -> tuple[Detection, ...]:
+                      gamma: float, keep: int, exposure: int | None = None
+                      ) -> tuple[Detection, ...]:
     """Detections re-ranked by ``score x BC^gamma`` (BC: the Bhattacharyya coefficient of the
     region's colour histogram, pooled as the model's, and the example's at the frame's
     ``exposure``, :meth:`..appearance.AppearanceModel.match`), the best ``keep``, that
-    product as their score (:mod:`eaglemission.detectors.appearance`). ``image`` may be the
-    frame reduced by ``scale`` (the detector's processing resolution: the histograms cost
-    ``scale^2`` of the full frame's)."""
+    product as their score (:mod:`eaglemission.detectors.appearance`); ``image`` at the
+    detections' resolution."""
     from eaglemission.detectors.appearance import region_histogram
 
     def bc(d: Detection) -> float:
-        corners = d.corners_px if scale == 1.0 else np.asarray(d.corners_px) * scale
-        return float(model.match(region_histogram(image, corners, pool=model.pool), exposure))
+        return float(model.match(region_histogram(image, d.corners_px, pool=model.pool),
+                                 exposure))
 
     ranked = sorted(((d.score * bc(d) ** gamma, k) for k, d in enumerate(dets)), reverse=True)
     return tuple(replace(dets[k], score=float(s)) for s, k in ranked[:keep])
@@ -107,11 +106,7 @@ class DTDMIDetector(SaliencyDetector):
         # the map, following and regions at the processing resolution (the map has no finer
         # detail: it is upsampled once, for the result); the detections in frame pixels
         native = self.config.downscale > 1 and self.engine.r.colour_propagation == 0
-        self.engine.native = native
-        try:
-            sal = self.engine.saliency(image, frame.timestamp_ns)
-        finally:
-            self.engine.native = False
+        sal = self.engine.saliency(image, frame.timestamp_ns, native)
         sx, sy = w / sal.shape[1], h / sal.shape[0]
         track = None if self.track_px is None else (
             (self.track_px[0] - (sx - 1) / 2) / sx, (self.track_px[1] - (sy - 1) / 2) / sy)
@@ -130,9 +125,9 @@ class DTDMIDetector(SaliencyDetector):
         dets, threshold = find_regions(sal, wide, reduced_prior(prior, sx, sy),
                                        camera_id=frame.camera_id)
         if gamma > 0:
-            work = self.engine.work if native else image
-            dets = appearance_rerank(dets, image if work is None else work, model, gamma,
-                                     cfg.max_detections, 1.0, self.engine.exposure)
+            colours = self.engine.work if native and self.engine.work is not None else image
+            dets = appearance_rerank(dets, colours, model, gamma, cfg.max_detections,
+                                     self.engine.exposure)
         kept = tuple(to_frame_pixels(d, sx, sy) for d in dets) if native else dets
         self.track_px = kept[0].center_px if kept else None
         if native:

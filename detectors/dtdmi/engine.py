@@ -60,7 +60,6 @@ class DTDMIEngine:
         self.appearance: Any = None  # AppearanceModel (detectors/appearance.py) or None
         self.work: np.ndarray | None = None  # the last frame at the processing resolution
         self.exposure: int | None = None  # the appearance model's exposure for the last frame
-        self.native = False  # general path: the map at the processing resolution (no resize)
         # S_s as a weighted sum of cues, the max fusion or an appearance image: the general
         # (unstreamed) path of _general_saliency
         self.general = (self.r.block_weight > 0 or self.r.fusion == "max"
@@ -356,15 +355,18 @@ class DTDMIEngine:
             np.take(lut, quantize_bgr(work), out=out)
 
     # -- whole frame ----------------------------------------------------------------------------
-    def saliency(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
-        """float32 (H, W) map in [0, 1] at the resolution of ``bgr``."""
-        sal = self._map(bgr, timestamp_ns)
+    def saliency(self, bgr: np.ndarray, timestamp_ns: int, native: bool = False) -> np.ndarray:
+        """float32 (H, W) map in [0, 1] at the resolution of ``bgr`` (``native``: at the
+        processing resolution, not resized back; not with colour propagation)."""
+        if native and self.r.colour_propagation > 0:
+            raise ValueError("native: the colour propagation reads the frame's resolution")
+        sal = self._map(bgr, timestamp_ns, native)
         if self.r.colour_propagation > 0:
             sal = propagate_by_colour(sal, bgr, self.r.colour_propagation,
                                       self._k if self.numba else None, self._paint)
         return sal
 
-    def _map(self, bgr: np.ndarray, timestamp_ns: int) -> np.ndarray:
+    def _map(self, bgr: np.ndarray, timestamp_ns: int, native: bool = False) -> np.ndarray:
         """The map before the refinements of :mod:`.refine`."""
         cfg = self.cfg
         work = bgr
@@ -374,10 +376,11 @@ class DTDMIEngine:
                               interpolation=cv2.INTER_AREA)
         work = self.work = np.ascontiguousarray(work)
         shape = (work.shape[0], work.shape[1])
+        out_hw = shape if native else (bgr.shape[0], bgr.shape[1])
         if shape != self._shape:
             self._allocate(shape)
         if self.general:
-            return self._finish(self._general_saliency(work, timestamp_ns), -1.0, bgr, shape)
+            return self._finish(self._general_saliency(work, timestamp_ns), -1.0, shape, out_hw)
         lut = self._static_lut(work, timestamp_ns) if cfg.use_static else None
         out = self._out
         if self.use_dynamic:
@@ -394,15 +397,13 @@ class DTDMIEngine:
                 top = float(out.max())
         if self.use_dynamic and self._pool_f:
             sigma_px = self.r.blur_sigma_frac * float(np.hypot(*shape))
-            return smooth_reduced(self._pooled, sigma_px / self._pool_f, True,
-                                  (bgr.shape[0], bgr.shape[1]), self._to_unit)
-        return self._finish(out, top, bgr, shape)
+            return smooth_reduced(self._pooled, sigma_px / self._pool_f, True, out_hw,
+                                  self._to_unit)
+        return self._finish(out, top, shape, out_hw)
 
-    def _finish(self, out: np.ndarray, top: float, bgr: np.ndarray,
-                shape: tuple[int, int]) -> np.ndarray:
-        """Smoothing, the output scale and the resize back to the frame's resolution (not with
-        ``native``)."""
-        full_shape = shape if self.native else (bgr.shape[0], bgr.shape[1])
+    def _finish(self, out: np.ndarray, top: float, shape: tuple[int, int],
+                full_shape: tuple[int, int]) -> np.ndarray:
+        """Smoothing, the output scale and the resize from ``shape`` to ``full_shape``."""
         if self.r.blur_sigma_frac > 0:
             return smooth_mapped(out, self.r.blur_sigma_frac * float(np.hypot(*shape)),
                                  full_shape, self._to_unit)
