@@ -41,8 +41,10 @@ def test_a_stalled_mission_loop_returns_instead_of_releasing(fast_config: Missio
     0.9 s as it enters FINE_APPROACH (the watchdog thread keeps running, as on PX4)."""
     doc = fast_config.model_dump(mode="json")
     stalled: list[float] = []
+    states: list[str] = []
 
     def stall(t_s: float, new: str, reason: str, action: str) -> None:
+        states.append(f"{t_s:.2f} s {new} ({reason})")
         if new == "FINE_APPROACH" and not stalled:
             stalled.append(t_s)
             time.sleep(0.9)  # on the loop thread: nothing feeds the watchdog
@@ -52,8 +54,10 @@ def test_a_stalled_mission_loop_returns_instead_of_releasing(fast_config: Missio
         flown = MissionFile.model_validate({**doc, "vehicle": {
             "type": "mavsdk", "params": {"url": url, "connect_timeout_s": 30}}})
         out = run_simulation(flown, realtime=True, log_path=log, on_state=stall)
-    assert stalled, "the mission never reached FINE_APPROACH"
     recs = list(read_log(log))
+    faults = [f"{r.get('state')}: {r['what']}: {r['text']}" for r in recs
+              if r["kind"] == "fault_detected"]
+    assert stalled, f"the mission never reached FINE_APPROACH: {states}; faults: {faults}"
     watchdog = [r for r in recs if r["kind"] == "fault_detected"
                 and r["what"] == "offboard_watchdog"]
     assert len(watchdog) == 1 and "WATCHDOG_HOLD" in watchdog[0]["text"]
