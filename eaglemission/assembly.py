@@ -42,6 +42,7 @@ from eaglemission.errors import (
     EagleMissionError,
     PluginError,
 )
+from eaglemission.gc_pauses import frozen_heap
 from eaglemission.interfaces import (
     FlightParts,
     GroundTruth,
@@ -514,7 +515,8 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         interrupts.mission = mission
         interrupts.mission_task = task = asyncio.ensure_future(mission.run())
         try:
-            result.outcome = await task
+            with frozen_heap():  # full collections walk only the flight's objects
+                result.outcome = await task
         except asyncio.CancelledError:
             if interrupts.count == 0 or not task.cancelled():
                 raise
