@@ -225,9 +225,12 @@ def select_detection(result: DetectionResult, predicted_px: tuple[float, float] 
 
 
 def regions_agree(a: Detection, b: Detection) -> bool:
-    """Each region's centre lies inside the other's MBR (the same object)."""
+    """One region's centre lies inside the other's MBR: the same object, whole or in part (near
+    the grasp pose a saliency region can be a fragment of the target at the image border, whose
+    centre is then outside the fragment; each centre inside the other refused the colour
+    region there: docs/mission.md, "colour region")."""
     return (inside_polygon(a.center_px, b.corners_px)
-            and inside_polygon(b.center_px, a.corners_px))
+            or inside_polygon(b.center_px, a.corners_px))
 
 
 def inside_polygon(point_px: tuple[float, float], corners_px: NDArray[np.float64]) -> bool:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from eaglemission.estimators.top_plane import TopPlaneFitter
 from eaglemission.missions.approach_config import ApproachConfig
-from eaglemission.missions.perception import Perception, Provenance, Request, Tools
+from eaglemission.missions.perception import Perception, Provenance, Request, Tools, inside_polygon
 from eaglemission.missions.target_state import PlaneState
 from world_helpers import approach_pose, detection_from_polygon
 
@@ -130,13 +130,17 @@ def test_no_estimator_no_estimate_and_a_refusal_says_why(scene) -> None:
     assert d.estimate is None and d.failure is None and d.provenance is None
 
 
-@pytest.mark.parametrize("paint_at_target", [True, False])
+@pytest.mark.parametrize("paint_at_target,fragment", [(True, False), (True, True),
+                                                      (False, False)])
 def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
-        scene, paint_at_target) -> None:
+        scene, paint_at_target, fragment) -> None:
     """Close range, a fine estimate asked: the target colour's region (the real
-    ``colour_blob`` tracker) replaces the detector's region when each centre lies in the other
-    (one box fit on the region that follows the target's edges); a colour region elsewhere does
-    not replace it."""
+    ``colour_blob`` tracker) replaces the detector's region when one centre lies in the other's
+    MBR (one box fit on the region that follows the target's edges); a colour region elsewhere
+    does not replace it. ``fragment``: the detector's region is the lower third of the target
+    (campaign seed 7 run 30: near the grasp pose, a saliency region at the narrow image's
+    bottom border; the colour region's centre lies outside it, and the fragment's fit ended
+    the grasp 8.2 cm off)."""
     import cv2
     from eaglemission.detectors.colour_blob import ColourBlobTracker
 
@@ -145,6 +149,14 @@ def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
     poly = np.asarray(det.corners_px, np.float64)
     if not paint_at_target:
         poly = poly + (300.0, 0.0)
+    outline_centre = det.center_px
+    if fragment:  # the lowest third of the painted outline (image v grows downwards)
+        v_cut = poly[:, 1].max() - (poly[:, 1].max() - poly[:, 1].min()) / 3.0
+        low = cv2.intersectConvexConvex(
+            poly.astype(np.float32), np.array([[-1e4, v_cut], [1e4, v_cut], [1e4, 1e4],
+                                               [-1e4, 1e4]], np.float32))[1].reshape(-1, 2)
+        det = detection_from_polygon(cv2.boxPoints(cv2.minAreaRect(low)), "narrow")
+        assert not inside_polygon(tuple(poly.mean(axis=0)), det.corners_px)
     cv2.fillPoly(image, [np.round(poly).astype(np.int32)], tuple(int(c) for c in target.color_bgr))
     frame = Frame(image, frame.timestamp_ns, frame.camera_id, frame.seq)
     tracker = ColourBlobTracker(target=target, camera_id="narrow")
@@ -158,6 +170,6 @@ def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
     assert m.detection is not None
     if paint_at_target:
         assert m.detection is not det and m.detection.hull_px is not None
-        np.testing.assert_allclose(m.detection.center_px, det.center_px, atol=3.0)
+        np.testing.assert_allclose(m.detection.center_px, outline_centre, atol=3.0)
     else:
         assert m.detection is det
