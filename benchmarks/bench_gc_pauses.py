@@ -6,7 +6,7 @@
 A long-lived process (a companion computer's, or the test suite's) holds many tracked objects;
 a full collection walks them all and stops every Python thread meanwhile: the setpoint stream,
 the telemetry task, the offboard watchdog (0.5 s). ``eaglemission.gc_pauses.frozen_heap`` freezes
-the heap alive at the flight's start. This script builds ``--ballast`` objects shaped like a
+the heap alive at the flight's start. This script builds about ``--ballast`` objects shaped like a
 test process's leftovers (dicts holding lists and tuples), flies the embedded simulated mission
 in virtual time, and times one full collection (``gc.collect()``) at FINE_APPROACH: with the
 assembly's ``frozen_heap`` and with it replaced by a no-op, alternated per round. It prints the
@@ -61,7 +61,8 @@ def _pause_in_flight(frozen: bool) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ballast", type=int, nargs="+", default=[800_000],
-                    help="tracked objects alive before the flight")
+                    help="objects built before the flight (dicts, lists, tuples; the "
+                    "number the collector tracks is printed)")
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     print(f"{'ballast':>9} {'tracked':>9} {'frozen ms':>10} {'unfrozen ms':>12} {'ratio':>7}")

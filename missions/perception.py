@@ -228,7 +228,7 @@ def regions_agree(a: Detection, b: Detection) -> bool:
     """One region's centre lies inside the other's MBR: the same object, whole or in part (near
     the grasp pose a saliency region can be a fragment of the target at the image border, whose
     centre is then outside the fragment; each centre inside the other refused the colour
-    region there: docs/mission.md, "colour region")."""
+    region there: docs/mission.md, "Design choices", "Blind final metres")."""
     return (inside_polygon(a.center_px, b.corners_px)
             or inside_polygon(b.center_px, a.corners_px))
 
