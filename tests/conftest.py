@@ -1,4 +1,5 @@
-"""Shared fixtures: seeded RNG, the ../shared data folder, fake clocks."""
+"""Shared fixtures: seeded RNG, the ../shared data folder, fake clocks; how the tests are shared
+between the xdist workers."""
 
 from __future__ import annotations
 
@@ -9,6 +10,21 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+MACHINE_GROUP = "machine"
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist reads the groups (--dist loadgroup)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Each module runs on one worker (its module-scoped fixtures are built once); the modules
+    marked ``machine`` share one group, so they run one at a time: they use fixed UDP ports or
+    find their child flights in /proc, which a second worker would disturb."""
+    for item in items:
+        if item.get_closest_marker("xdist_group") is not None:
+            continue
+        group = (MACHINE_GROUP if item.get_closest_marker("machine") is not None
+                 else item.nodeid.split("::", 1)[0])
+        item.add_marker(pytest.mark.xdist_group(group))
 
 
 def shared_dir() -> Path | None:

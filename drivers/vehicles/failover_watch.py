@@ -2,9 +2,10 @@
 
 PX4 (recorded i) declares offboard loss COM_OF_LOSS_T after the last setpoint, switches to
 Position and sinks; when the link returns MAVSDK's next setpoint puts it straight back in
-OFFBOARD and the client never sees a mode change. A gap in the position telemetry longer than
-COM_OF_LOSS_T while offboard means the setpoints did not arrive either (docs/vehicles.md).
-"""
+OFFBOARD and the client never sees a mode change. A silence in the telemetry (every stream)
+longer than COM_OF_LOSS_T while offboard means the setpoints did not arrive either
+(docs/vehicles.md). The gap is told at the first message after it, whichever stream it is on, so
+the event comes before a HEARTBEAT's failover mode ends our offboard control."""
 
 from __future__ import annotations
 
@@ -31,8 +32,8 @@ def failover_data(gap_s: float, timeout_s: float) -> dict[str, object]:
 
 
 class FailoverWatch:
-    """Fed every gap between two position samples; ``offboard()`` says whether an offboard
-    session was active. Emits one ``failover`` event per gap over ``timeout_s``."""
+    """Fed every gap between two telemetry samples (any stream); ``offboard()`` says whether an
+    offboard session was active. Emits one ``failover`` event per gap over ``timeout_s``."""
 
     def __init__(self, offboard: Callable[[], bool],
                  event: Callable[[str, str, dict[str, Any]], None],

@@ -82,7 +82,8 @@ class MavsdkTelemetry:
         self.mav_flight_mode: Any = None  # mavsdk.plugins.telemetry.FlightMode
         self._event = event
         self._on_mode_hook = on_mode
-        self.on_gap: Callable[[float], None] | None = None  # (seconds between position samples)
+        self.on_gap: Callable[[float], None] | None = None  # (seconds between two samples)
+        self._last_rx_ns = 0  # the newest receipt stamp of any stream
         self.stamps = TelemetryTimeCheck()  # every attitude sample's autopilot stamp
         self._stamp_reported: dict[str, int] = {}
 
@@ -127,6 +128,7 @@ class MavsdkTelemetry:
         try:
             while True:
                 stamp, data = await queue.get()
+                self._note_gap(stamp)
                 try:
                     handler(stamp, data)
                 except Exception:  # one bad sample must not end the stream
@@ -135,14 +137,22 @@ class MavsdkTelemetry:
             with contextlib.suppress(Exception):
                 getattr(plugin, f"unsubscribe_{name}")(handle)
 
+    def _note_gap(self, t: int) -> None:
+        """Every sample of every stream, before its handler: the silence since the previous
+        one (any stream) is the link's. The first message after a cut link, a HEARTBEAT's mode
+        as much as a position, tells the gap before its own handler runs."""
+        last = self._last_rx_ns
+        if t > last:
+            self._last_rx_ns = t
+            if last and self.on_gap is not None:
+                self.on_gap((t - last) * 1e-9)
+
     # ------------------------------------------------------------------------------------------
     def _on_local(self, t: int, d: Any) -> None:
         c = self.cache
         p, v = d.position, d.velocity
         c.local_ned = (p.north_m, p.east_m, p.down_m)
         c.local_vel = (v.north_m_s, v.east_m_s, v.down_m_s)
-        if c.local_t_ns and self.on_gap is not None and t > c.local_t_ns:
-            self.on_gap((t - c.local_t_ns) * 1e-9)
         c.local_t_ns = c.last_sample_ns = t
         self._append_state(t)
 

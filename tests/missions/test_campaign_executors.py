@@ -31,6 +31,8 @@ from mission_helpers import variant
 
 from eaglemission.config import MissionFile, load_config
 
+pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+
 SEED = 4
 RUNS = 3
 

@@ -26,7 +26,7 @@ from deployment_helpers import (
 )
 from mission_helpers import variant
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.machine]  # ports, child processes
 ON_GROUND = 1  # MAV_LANDED_STATE_ON_GROUND
 
 

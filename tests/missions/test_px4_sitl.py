@@ -18,7 +18,7 @@ from deployment_helpers import cli, log_records, mission_file, run_env
 
 from eaglemission.names import ENV_PX4_URL
 
-pytestmark = [pytest.mark.px4, pytest.mark.skipif(
+pytestmark = [pytest.mark.px4, pytest.mark.machine, pytest.mark.skipif(
     not os.environ.get(ENV_PX4_URL), reason=f"no PX4 SITL: set {ENV_PX4_URL}")]
 
 

@@ -48,6 +48,8 @@ except ImportError:  # pragma: no cover - when tests/ becomes a package
     )
     from .emulator_support import ScaledClock  # type: ignore[no-redef]
 
+pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+
 SPEEDUP = 4.0
 WATCHDOG_WALL_S = 0.3
 
@@ -129,16 +131,29 @@ class MavsdkLinkTests:
             # a HEARTBEAT sent in the failover mode reached us before our first setpoint
             # reached PX4: the driver ends its control (it cannot know PX4 will come back)
             back_in_offboard = False
-            await b.sleep(1.0)
         ev = [e for e in b.vehicle.events() if e.kind == "failover"]
         assert ev, "no failover event after a 3 s link loss while offboard"
-        assert ev[0].data["gap_s"] > ev[0].data["offboard_loss_timeout_s"]
+        loss_timeout_s = ev[0].data["offboard_loss_timeout_s"]
+        assert ev[0].data["gap_s"] > loss_timeout_s
         if back_in_offboard:  # PX4 went straight back to OFFBOARD (recorded i)
             assert b.vehicle.state().flight_mode == FlightMode.OFFBOARD
         else:
-            ended = [e for e in b.vehicle.events() if e.kind == "mode"
+            events = list(b.vehicle.events())
+            ended = [i for i, e in enumerate(events) if e.kind == "mode"
                      and e.text.startswith("offboard ended")]
-            assert ended and b.vehicle.state().flight_mode == FlightMode.POSCTL, ended
+            assert ended, "ModeChangedExternally raised without an 'offboard ended' event"
+            # the gap is told by the first message after it, the HEARTBEAT included, so the
+            # mission sees the failover no later than the mode that ended its control
+            first_failover = next(i for i, e in enumerate(events) if e.kind == "failover")
+            assert first_failover < ended[0], events[-6:]
+            # Setpoints already on their way when the driver stopped may still bring PX4 back
+            # to OFFBOARD (recorded i); with none after them it fails over again COM_OF_LOSS_T
+            # later, shown at the next HEARTBEAT.
+            await b.wait(lambda st: st.flight_mode == FlightMode.POSCTL,
+                         loss_timeout_s + 2 * b.report_lag_s + 1.0,
+                         "Position again once the driver stopped its setpoints")
+            with pytest.raises(ModeChangedExternally):
+                await b.vehicle.set_setpoint(sp)  # the driver does not take control back
 
 
 class TestMavsdkEmulatorContract(VehicleContract, MavsdkLinkTests):

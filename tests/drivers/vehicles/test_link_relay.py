@@ -15,6 +15,8 @@ from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle, MavsdkVe
 from eaglemission.errors import ConfigError
 from eaglemission.fault_injection import injector_of
 
+pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+
 
 def _port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

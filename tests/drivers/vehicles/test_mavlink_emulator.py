@@ -43,6 +43,8 @@ try:  # tests/ is not a package
 except ImportError:  # pragma: no cover
     from .emulator_support import flying_pair, scenario, wait_for  # type: ignore[no-redef]
 
+pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+
 M = mavlink
 
 
