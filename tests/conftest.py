@@ -34,6 +34,14 @@ def shared_dir() -> Path | None:
     return p if p.is_dir() else None
 
 
+@pytest.fixture(autouse=True)
+def wide_console(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The CLI's rich console wraps at COLUMNS (80 off a terminal) and folds a word longer than
+    what is left of the line, a temporary path included (longer under xdist: ``popen-gw1``):
+    one width for every test, its subprocesses included."""
+    monkeypatch.setenv("COLUMNS", "1000")
+
+
 @pytest.fixture
 def shared() -> Path:
     p = shared_dir()
