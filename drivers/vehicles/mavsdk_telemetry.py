@@ -128,8 +128,8 @@ class MavsdkTelemetry:
         try:
             while True:
                 stamp, data = await queue.get()
-                self._note_gap(stamp)
                 try:
+                    self._note_gap(stamp)
                     handler(stamp, data)
                 except Exception:  # one bad sample must not end the stream
                     log.exception("mavsdk %s: cannot handle %r", name, data)
