@@ -3,7 +3,9 @@ between the xdist workers."""
 
 from __future__ import annotations
 
+import gc
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +34,21 @@ def shared_dir() -> Path | None:
     env = os.environ.get("EAGLEMISSION_SHARED")
     p = Path(env) if env else REPO.parent / "shared"
     return p if p.is_dir() else None
+
+
+@pytest.fixture(autouse=True)
+def short_gc_pauses(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Late in a run a worker holds 1.3-1.6 million objects (numba's compiler state, imports,
+    module fixtures), and a full collection then stops every thread for up to 1.3 s, longer
+    than the offboard watchdog's 0.5 s in a real-time test that is not a flight. After each
+    test what it left is collected and the survivors frozen (:func:`gc.freeze`), so a test's
+    full collections walk only what it allocated, as a flight's do (eaglemission/gc_pauses.py).
+    Tests marked ``gc_unfrozen`` run on the whole heap, unfrozen."""
+    if request.node.get_closest_marker("gc_unfrozen") is not None:
+        gc.unfreeze()
+    yield
+    gc.collect()
+    gc.freeze()
 
 
 @pytest.fixture(autouse=True)

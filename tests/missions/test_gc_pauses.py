@@ -6,9 +6,14 @@ from __future__ import annotations
 import gc
 import weakref
 
+import pytest
 from eaglemission.missions.sim import run_simulation
 
 from eaglemission.gc_pauses import frozen_heap
+
+# the suite freezes the heap between tests (tests/conftest.py): these see the heap as a mission
+# process does, unfrozen
+pytestmark = pytest.mark.gc_unfrozen
 
 
 class _Node:
