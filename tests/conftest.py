@@ -19,8 +19,9 @@ MACHINE_GROUP = "machine"
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the groups (--dist loadgroup)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Each module runs on one worker (its module-scoped fixtures are built once); the modules
-    marked ``machine`` share one group, so they run one at a time: they use fixed UDP ports or
-    find their child flights in /proc, which a second worker would disturb."""
+    marked ``machine`` share one group, so they run one at a time: they use UDP ports, start
+    emulator processes or find their child flights in /proc, or talk to a PX4 SITL, which a
+    second worker would disturb."""
     for item in items:
         if item.get_closest_marker("xdist_group") is not None:
             continue

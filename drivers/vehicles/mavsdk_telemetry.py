@@ -82,7 +82,7 @@ class MavsdkTelemetry:
         self.mav_flight_mode: Any = None  # mavsdk.plugins.telemetry.FlightMode
         self._event = event
         self._on_mode_hook = on_mode
-        self.on_gap: Callable[[float], None] | None = None  # (seconds between two samples)
+        self.on_gap: Callable[[float], None] | None = None  # (seconds between two samples, any stream)
         self._last_rx_ns = 0  # the newest receipt stamp of any stream
         self.stamps = TelemetryTimeCheck()  # every attitude sample's autopilot stamp
         self._stamp_reported: dict[str, int] = {}

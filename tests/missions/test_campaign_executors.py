@@ -31,7 +31,7 @@ from mission_helpers import variant
 
 from eaglemission.config import MissionFile, load_config
 
-pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+pytestmark = pytest.mark.machine  # its emulators are found in /proc (tests/conftest.py)
 
 SEED = 4
 RUNS = 3

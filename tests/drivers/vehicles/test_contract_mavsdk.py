@@ -48,7 +48,7 @@ except ImportError:  # pragma: no cover - when tests/ becomes a package
     )
     from .emulator_support import ScaledClock  # type: ignore[no-redef]
 
-pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+pytestmark = pytest.mark.machine  # a PX4 SITL's fixed ports when set (tests/conftest.py)
 
 SPEEDUP = 4.0
 WATCHDOG_WALL_S = 0.3

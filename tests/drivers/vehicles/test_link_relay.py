@@ -15,7 +15,7 @@ from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle, MavsdkVe
 from eaglemission.errors import ConfigError
 from eaglemission.fault_injection import injector_of
 
-pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+pytestmark = pytest.mark.machine  # UDP sockets in real time (tests/conftest.py)
 
 
 def _port() -> int:

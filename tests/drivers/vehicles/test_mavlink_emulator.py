@@ -43,7 +43,7 @@ try:  # tests/ is not a package
 except ImportError:  # pragma: no cover
     from .emulator_support import flying_pair, scenario, wait_for  # type: ignore[no-redef]
 
-pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+pytestmark = pytest.mark.machine  # emulator processes, UDP links (tests/conftest.py)
 
 M = mavlink
 

@@ -32,7 +32,7 @@ try:  # tests/ is not a package
 except ImportError:  # pragma: no cover
     from .emulator_support import flying_pair, wait_for  # type: ignore[no-redef]
 
-pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+pytestmark = pytest.mark.machine  # MAVSDK over UDP links (tests/conftest.py)
 
 REPO = Path(__file__).resolve().parents[3]
 

@@ -31,7 +31,8 @@ try:  # tests/ is not a package
 except ImportError:  # pragma: no cover
     from .plain_mavsdk import PlainClient, bearing_deg, plain_client  # type: ignore[no-redef]
 
-pytestmark = pytest.mark.machine  # fixed UDP ports / processes (tests/conftest.py)
+pytestmark = pytest.mark.machine  # no port of its own (raw://): kept with the other
+# real-time MAVSDK modules, a conservative choice (tests/conftest.py)
 
 SPEEDUP = 6.0
 
