@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from eaglemission.missions.campaign import run_campaign
-from eaglemission.missions.campaign_executors import flight_fields
+from eaglemission.lab.campaign.campaign import run_campaign
+from eaglemission.lab.campaign.executors import flight_fields
 
 
 def _normal(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:

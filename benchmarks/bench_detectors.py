@@ -16,7 +16,7 @@ upscaled bilinearly to 1280x960) when ../shared exists, else generated textured 
 No target (``--no-target``): detections per frame with each detector's config (default, or
 ``--params``) on target-free ground, a camera translating 4 px/frame (cruise) and hovering
 (static + sensor noise), 854x480. Ground from the synthetic world's textures
-(drivers/cameras/textures.py) when importable, else generated value noise; ``--ground-images
+(lab/world/textures.py) when importable, else generated value noise; ``--ground-images
 DIR``: the real nadir photos in DIR at their own scale. Issues 3 and 14 ask for at most 0.05
 detections per frame.
 """
@@ -97,7 +97,7 @@ def target_image(spec: str | None) -> np.ndarray | None:
         if img is None:
             raise EagleMissionError(f"--target-image {spec!r}: not an image file")
         return img
-    from eaglemission.detectors.boxes import box_from_mask, crop_box
+    from eaglemission.lab.bench.boxes import box_from_mask, crop_box
 
     frame = DAVIS / "dog" / "frames" / "00000.jpg"
     mask = cv2.imread(str(DAVIS / "dog" / "gt" / "00000.png"), cv2.IMREAD_GRAYSCALE)
@@ -174,9 +174,9 @@ def speed(args: argparse.Namespace) -> int:
 
 def ground_images() -> tuple[str, dict[str, np.ndarray]]:
     try:
-        from eaglemission.drivers.cameras.textures import KINDS, base_texture
+        from eaglemission.lab.world.textures import KINDS, base_texture
 
-        return "synthetic-world textures (drivers/cameras/textures.py), 2 cm/texel", {
+        return "synthetic-world textures (lab/world/textures.py), 2 cm/texel", {
             k: base_texture(k, 1400, 0.02, 7) for k in KINDS}
     except Exception as exc:  # the camera helper's module may be absent or changed
         print(f"# world textures unavailable ({exc}); using generated value noise",

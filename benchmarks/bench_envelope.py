@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "core"))
 
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle  # noqa: E402
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle  # noqa: E402
 from envelope_scenarios import Leg, Scenario, fly  # noqa: E402
 
 from eaglemission.clock import ManualClock  # noqa: E402

@@ -5,7 +5,7 @@
 
 A long-lived process (a companion computer's, or the test suite's) holds many tracked objects;
 a full collection walks them all and stops every Python thread meanwhile: the setpoint stream,
-the telemetry task, the offboard watchdog (0.5 s). ``eaglemission.gc_pauses.frozen_heap`` freezes
+the telemetry task, the offboard watchdog (0.5 s). ``eaglemission.flight.heap.frozen_heap`` freezes
 the heap alive at the flight's start. This script builds about ``--ballast`` objects shaped like a
 test process's leftovers (dicts holding lists and tuples), flies the embedded simulated mission
 in virtual time, and times one full collection (``gc.collect()``) at FINE_APPROACH: with the
@@ -29,11 +29,11 @@ def _ballast(n: int) -> list[Any]:
 
 
 def _pause_in_flight(frozen: bool) -> float:
-    from eaglemission.missions.sim import run_simulation
+    from eaglemission.lab.campaign.sim import run_simulation
 
-    from eaglemission import assembly
     from eaglemission.config import load_config
-    from eaglemission.gc_pauses import frozen_heap
+    from eaglemission.flight import run as assembly
+    from eaglemission.flight.heap import frozen_heap
 
     @contextlib.contextmanager
     def no_freeze() -> Iterator[int]:

@@ -111,8 +111,8 @@ def mission_detector_spec() -> tuple[str, str, dict]:
 
 def mission_context() -> dict[str, np.ndarray]:
     """The mission's detector context: its ``target.appearance_image``, when it has one."""
-    from eaglemission.assembly import load_appearance_image
     from eaglemission.config import load_config
+    from eaglemission.flight.assembly import load_appearance_image
 
     img = load_appearance_image(load_config(check_plugins=False))
     return {} if img is None else {"appearance": img}

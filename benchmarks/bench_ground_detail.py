@@ -18,13 +18,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.drivers.cameras.photo_ground import gradient_energy
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import GroundImageConfig, SyntheticWorldConfig
+from eaglemission.lab.world.ground_images import read_photo
+from eaglemission.lab.world.photo_ground import gradient_energy
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import GroundImageConfig, SyntheticWorldConfig
 
 from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount, euler_to_quat
-from eaglemission.ground_images import read_photo
 
 CAMERAS = {"wide": 2.8, "narrow": 12.0}
 GROUND_M_PER_PX = {"wide": 0.008, "narrow": 0.002}  # near the target (issue 14)

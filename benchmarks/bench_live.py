@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 from eaglemission.missions.mission import ApproachOutcome
 
-from eaglemission.assembly import FlightOptions, FlightResult, fly_sync
 from eaglemission.config import MissionFile, load_config
+from eaglemission.flight.run import FlightOptions, FlightResult, fly_sync
 from eaglemission.interfaces import MissionHooks
-from eaglemission.live import LiveOptions
+from eaglemission.recording.live import LiveOptions
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "core"))
 from foxglove_ws import FoxgloveClient, Received  # noqa: E402

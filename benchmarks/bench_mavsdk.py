@@ -20,8 +20,8 @@ import socket
 import statistics
 import time
 
-from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
-from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
+from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle
+from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
 
 from eaglemission.types import FlightMode, Setpoint
 

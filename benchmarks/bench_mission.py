@@ -18,16 +18,16 @@ import time
 
 import cv2
 import numpy as np
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
-from eaglemission.drivers.worlds.synthetic import world_config
+from eaglemission.lab.campaign.sim import run_simulation
+from eaglemission.lab.vehicles.multicopter.dynamics import attitude_from_acceleration
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import world_config
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.perception import plausible_size, select_detection
-from eaglemission.missions.sim import run_simulation
 
 from eaglemission import registry
-from eaglemission.assembly import detector_params
 from eaglemission.config import MissionFile, load_config
+from eaglemission.flight.assembly import detector_params
 from eaglemission.types import Frame, VehicleState
 
 

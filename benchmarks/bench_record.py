@@ -31,11 +31,11 @@ import numpy as np
 from eaglemission.missions.mission import ApproachOutcome
 from mcap.records import Channel, Message
 
-from eaglemission.assembly import FlightOptions, FlightResult, fly_sync
 from eaglemission.config import MissionFile, load_config
+from eaglemission.flight.run import FlightOptions, FlightResult, fly_sync
 from eaglemission.interfaces import MissionHooks
-from eaglemission.mcap_options import RecordOptions
-from eaglemission.mcap_tools import Scan, scan
+from eaglemission.recording.mcap_reader import Scan, scan
+from eaglemission.recording.options import RecordOptions
 
 
 def _config(detector: str, short: bool) -> MissionFile:

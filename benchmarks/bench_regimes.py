@@ -1,6 +1,6 @@
 """DTDMI in the mission's two regimes: a static ground target seen by a moving, then hovering UAV.
 
-The synthetic world (``eaglemission.drivers.cameras.world``) renders the wide camera of
+The synthetic world (``eaglemission.lab.world.render``) renders the wide camera of
 configs/sitl_synthetic.yaml along a straight flight north at 5 m: cruise at 3 m/s, a
 deceleration to 0 over 2 s (nose up by atan(a/g)), then a hover of ``--hover-s`` seconds with
 small hover motion (+-2 cm, +-0.3 deg at 0.7 Hz). Every pose is rendered twice: with the target
@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 
 from eaglemission import registry
 from eaglemission.config import TargetConfig

@@ -24,8 +24,8 @@ import time
 
 import cv2
 import numpy as np
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import world_config
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import world_config
 from eaglemission.missions.approach_config import ApproachConfig
 
 from eaglemission.config import load_config
@@ -67,7 +67,7 @@ EFFECTS = {
 def exposure_start(poses, k: int, exposure_s: float, yaw_rate_degps: float = 30.0):
     """The pose half an exposure before pose k: back along the trajectory at its speed (3 m/s
     on the cruise half, 1.5 m/s on the approach), yawed back at ``yaw_rate_degps``."""
-    from eaglemission.drivers.cameras.synthetic import pose_moved_back
+    from eaglemission.lab.cameras.synthetic import pose_moved_back
 
     n = len(poses)
     a, b = poses[max(0, k - 1)][0], poses[min(n - 1, max(1, k))][0]
@@ -79,7 +79,7 @@ def exposure_start(poses, k: int, exposure_s: float, yaw_rate_degps: float = 30.
 
 
 def effects(cfg, frames: int) -> None:
-    from eaglemission.drivers.cameras.imaging import motion_blur
+    from eaglemission.lab.cameras.imaging import motion_blur
 
     sim = world_config(cfg)
     variants = {"none": sim, **{name: sim.model_copy(update=u) for name, u in EFFECTS.items()}}

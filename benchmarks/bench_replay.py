@@ -17,11 +17,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from eaglemission.assembly import FlightOptions, fly_sync
 from eaglemission.commands.replay import replay
 from eaglemission.config import MissionFile, load_config
-from eaglemission.mcap_options import RecordOptions
-from eaglemission.mcap_tools import log_records
+from eaglemission.flight.run import FlightOptions, fly_sync
+from eaglemission.recording.mcap_reader import log_records
+from eaglemission.recording.options import RecordOptions
 
 
 def config(seed: int, width_px: int, full: bool) -> MissionFile:

@@ -36,16 +36,16 @@ import cv2
 import numpy as np
 from eaglemission.detectors import base as det_base
 from eaglemission.detectors.mss import mss_distance
-from eaglemission.drivers.cameras import world as world_mod
-from eaglemission.drivers.cameras.synthetic import geofence_extent_m
-from eaglemission.drivers.vehicles.dynamics import attitude_from_acceleration
-from eaglemission.drivers.worlds.synthetic import world_config
 from eaglemission.estimators import correspondence as corr
 from eaglemission.estimators.rpnp import refine_pose
+from eaglemission.lab.cameras.synthetic import geofence_extent_m
+from eaglemission.lab.campaign.sim import run_simulation
+from eaglemission.lab.vehicles.multicopter.dynamics import attitude_from_acceleration
+from eaglemission.lab.world import render as world_mod
+from eaglemission.lab.world.synthetic import world_config
 from eaglemission.missions import runner as runner_mod
 from eaglemission.missions import silhouette as sil
 from eaglemission.missions.approach_config import ApproachConfig
-from eaglemission.missions.sim import run_simulation
 
 from eaglemission.config import MissionFile, load_config
 from eaglemission.geometry import camera_pose_ned

@@ -15,9 +15,9 @@ import json
 import logging
 
 import numpy as np
-from eaglemission.drivers.worlds.synthetic import world_config
-from eaglemission.missions.campaign import randomise
-from eaglemission.missions.sim import run_simulation
+from eaglemission.lab.campaign.campaign import randomise
+from eaglemission.lab.campaign.sim import run_simulation
+from eaglemission.lab.world.synthetic import world_config
 
 from eaglemission.config import load_config
 
@@ -82,8 +82,7 @@ def main() -> None:
     sim = world_config(cfg)
     print(json.dumps({k: sim.model_dump()[k] for k in (
         "target_yaw_deg", "ground_texture", "wind_ne_mps", "camera_time_offset_s")}))
-    from eaglemission.drivers.cameras import world as world_mod
-
+    from eaglemission.lab.world import render as world_mod
     for cam_id in ("wide", "narrow"):
         rng_c = world_mod.seed_rng(sim.seed, "camera", cam_id)
         world_mod.random_rotation(sim.mount_error_deg, rng_c)

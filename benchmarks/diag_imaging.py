@@ -14,11 +14,11 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from eaglemission.missions.campaign import randomise
-from eaglemission.missions.sim import run_simulation
+from eaglemission.lab.campaign.campaign import randomise
+from eaglemission.lab.campaign.sim import run_simulation
+from eaglemission.lab.world.ground_images import ground_image_files
 
 from eaglemission.config import MissionFile, load_config
-from eaglemission.ground_images import ground_image_files
 
 OFF = {"jpeg": {"jpeg_quality": None}, "white_balance": {"white_balance_gains_bgr": (1, 1, 1)},
        "motion_blur": {"motion_blur": False}, "bayer": {"bayer_pattern": None}}

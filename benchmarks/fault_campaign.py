@@ -22,9 +22,9 @@ import time
 from pathlib import Path
 
 import yaml
-from eaglemission.missions.campaign import print_summary, run_campaign
-from eaglemission.missions.campaign_emulator import EMULATOR_KINDS, emulator_kinds
-from eaglemission.missions.campaign_faults import parse_kinds, print_fault_table
+from eaglemission.lab.campaign.campaign import print_summary, run_campaign
+from eaglemission.lab.campaign.emulator import EMULATOR_KINDS, emulator_kinds
+from eaglemission.lab.campaign.faults import parse_kinds, print_fault_table
 
 from eaglemission.config import load_config
 

@@ -99,7 +99,7 @@ def run_telemetry(n: int, rng: random.Random, tmp: Path) -> Tally:
 
 
 def run_mavlink(n: int, rng: random.Random, tmp: Path) -> Tally:
-    from eaglemission.drivers.vehicles.hil_truth import HilTruth
+    from eaglemission.drivers.vehicles.mavsdk.hil_truth import HilTruth
     from fuzz_mavlink import EmulatorRig, check_hil, check_stream, random_hil_json, random_stream
 
     tally = Tally()

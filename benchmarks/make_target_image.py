@@ -19,8 +19,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import world_config
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import world_config
 
 from eaglemission.config import load_config
 from eaglemission.geometry import euler_to_quat

@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_detectors as bench  # noqa: E402
-from eaglemission.detectors.bench_data import find_sequences, first_frame_crop  # noqa: E402
+from eaglemission.lab.bench.data import find_sequences, first_frame_crop  # noqa: E402
 
 from eaglemission import registry  # noqa: E402
 from eaglemission.types import Frame  # noqa: E402

@@ -26,11 +26,11 @@ import math
 import statistics
 import sys
 
-from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
+from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle
 
 from eaglemission.config import GeofenceConfig, SafetyConfig
 from eaglemission.geometry import down_axis_cos_tilt
-from eaglemission.safety import SafeVehicle
+from eaglemission.safety.envelope import SafeVehicle
 from eaglemission.types import FlightMode, Setpoint
 
 SETPOINT_PERIOD_S = 0.05

@@ -30,8 +30,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from eaglemission.assembly import FlightOptions, fly_sync
 from eaglemission.config import load_config
+from eaglemission.flight.run import FlightOptions, fly_sync
 from eaglemission.interfaces import MissionHooks
 
 FIGURES = ("rss_mb", "fds", "threads", "tasks_peak")

@@ -7,7 +7,7 @@ Usage::
 Each argument is a JSON object of DTDMIConfig overrides (``{"detector": "midbrain", ...}``
 picks another of the DTDMI-family plugins); ``sr`` and ``centre`` score the references. Prints
 pooled max-F (beta^2 = 0.3), AUC and MAE over all frames (per-image mean protocol of
-eaglemission.detectors.metrics) and the ratio of max-F to OpenCV's spectral residual.
+eaglemission.lab.bench.metrics) and the ratio of max-F to OpenCV's spectral residual.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.detectors.metrics import CurveAccumulator, normalize_map
+from eaglemission.lab.bench.metrics import CurveAccumulator, normalize_map
 
 from eaglemission.types import Frame
 

@@ -54,22 +54,22 @@ from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.detectors.bench_data import (  # noqa: E402
-    BenchSequence,
-    find_sequences,
-    first_frame_crop,
-    frame_time_ns,
-    read_gt,
-)
-from eaglemission.detectors.boxes import (  # noqa: E402
+from eaglemission.detectors.dtdmi.detector import appearance_rerank  # noqa: E402
+from eaglemission.detectors.inputs import frame_time_ns  # noqa: E402
+from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: E402
+from eaglemission.lab.bench.boxes import (  # noqa: E402
     BoxScores,
     box_from_mask,
     score_frame,
     spread,
 )
-from eaglemission.detectors.dtdmi.detector import appearance_rerank  # noqa: E402
-from eaglemission.detectors.metrics import CurveAccumulator, normalize_map  # noqa: E402
-from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: E402
+from eaglemission.lab.bench.data import (  # noqa: E402
+    BenchSequence,
+    find_sequences,
+    first_frame_crop,
+    read_gt,
+)
+from eaglemission.lab.bench.metrics import CurveAccumulator, normalize_map  # noqa: E402
 
 from eaglemission import registry  # noqa: E402
 from eaglemission.types import DetectionResult, Frame  # noqa: E402

@@ -16,14 +16,14 @@ from typing import Any, cast
 
 import cv2
 import numpy as np
-from eaglemission.detectors.bench_data import (
+from eaglemission.detectors.cli_params import UsageError, deep_merge, parse_kv
+from eaglemission.detectors.inputs import (
     IMAGE_EXTS,
     frame_time_ns,
     images_in,
     read_image,
     read_target_image,
 )
-from eaglemission.detectors.cli_params import UsageError, deep_merge, parse_kv
 from eaglemission.detectors.regions import to_uint8
 from numpy.typing import NDArray
 

@@ -1,8 +1,8 @@
 """Plugin registry: entry points, one group per role, checked against the role's Protocol.
 
 Plugins are loaded only from entry points (``eaglemission.cameras``, ``.vehicles``,
-``.detectors``, ``.estimators``, ``.fitters``, ``.trackers``, ``.missions``, ``.worlds``); a
-config can never name an import path. A plugin class declares ``Config`` (a pydantic model of its params, with defaults) and a one-line
+``.detectors``, ``.estimators``, ``.fitters``, ``.trackers``, ``.missions``, ``.worlds``,
+``.sections``, ``.judges``); a config can never name an import path. A plugin class declares ``Config`` (a pydantic model of its params, with defaults) and a one-line
 ``description``; ``load(role, name, params, **context)`` validates the params with that model
 and constructs the plugin as ``cls(config=..., **context)``.
 """
@@ -18,14 +18,16 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from eaglemission.config_errors import format_validation_error
+from eaglemission.config.errors import format_validation_error
 from eaglemission.errors import ConfigError, PluginError
 from eaglemission.interfaces import (
     Camera,
     Detector,
     Estimator,
+    Judge,
     Mission,
     PlaneFitter,
+    Section,
     Tracker,
     Vehicle,
     World,
@@ -41,6 +43,8 @@ PROTOCOLS: dict[str, type] = {
     "trackers": Tracker,
     "missions": Mission,
     "worlds": World,
+    "sections": Section,
+    "judges": Judge,
 }
 
 

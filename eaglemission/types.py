@@ -279,7 +279,7 @@ class VehicleState:
     # along the body's down axis to what lies below, metres; None without a sensor or out of range
     distance_to_ground_m: float | None = None
     # the autopilot's own stamp of the sample (MAVLink time_boot_ms / time_usec, ns since its
-    # boot); None when the vehicle does not report it (eaglemission.telemetry_time checks it)
+    # boot); None when the vehicle does not report it (eaglemission.telemetry.time_checks checks it)
     autopilot_time_ns: int | None = None
 
     @property

@@ -4,7 +4,7 @@
 Commands come through a queue (``arm_takeoff``, ``start_offboard``, ``grasp``, ``final``);
 results go back as plain attributes the runner reads on the loop thread (``command_failed``,
 ``offboard``, ``grasp_done``, ``finished``). Before the first command its
-:class:`~eaglemission.autopilot_guard.AutopilotGuard` reads the autopilot's failsafe
+:class:`~eaglemission.safety.autopilot_guard.AutopilotGuard` reads the autopilot's failsafe
 parameters and sets those outside the envelope inside it (or refuses the flight); they are
 restored after landing.
 """
@@ -22,10 +22,10 @@ from eaglemission.missions.guidance import Guidance
 from eaglemission.missions.log import MissionLog
 
 from eaglemission import errors
-from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import Clock
 from eaglemission.config import MissionFile, SafetyConfig
 from eaglemission.interfaces import Vehicle
+from eaglemission.safety.autopilot_guard import AutopilotGuard
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +188,7 @@ class Actuator:
 
     async def guard_autopilot(self) -> None:
         """Read the autopilot's failsafe parameters, set those outside the envelope inside it
-        or refuse (:mod:`eaglemission.autopilot_guard`); one ``autopilot_params`` record, one
+        or refuse (:mod:`eaglemission.safety.autopilot_guard`); one ``autopilot_params`` record, one
         ``param_set`` per change and the old values in ``failsafe_params``."""
         rep = await self.guard.apply()
         if not rep.available:

@@ -18,7 +18,7 @@ from pydantic import ValidationError
 from eaglemission.commands.checks import simulated_world
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel, camera_pose_ned, euler_to_quat
-from eaglemission.safety import Envelope, braking_distance_m
+from eaglemission.safety.envelope import Envelope, braking_distance_m
 
 VERTICAL_MARGIN_M = 0.5
 """SafeVehicle's default vertical margin inside the altitude band."""

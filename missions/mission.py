@@ -1,10 +1,10 @@
 """The ``approach`` mission plugin: flies the approach-to-grasp mission on the parts the
-assembly built (:mod:`eaglemission.assembly`) and judges the flight.
+assembly built (:mod:`eaglemission.flight.assembly`).
 
-``run`` builds the :class:`~eaglemission.missions.runner.MissionRunner` on the given parts,
-flies, and evaluates: against ground truth when the vehicle has it (the simulated vehicle, or
-HIL_STATE_QUATERNION from a SITL autopilot or the emulator) and the world knows the target
-(synthetic cameras); otherwise on the autopilot's own estimate, and says so.
+``run`` builds the :class:`~eaglemission.missions.runner.MissionRunner` on the given parts and
+flies; at the end it hands its report to the flight's judge when it has one
+(:mod:`eaglemission.interfaces.judge`: in simulation, against ground truth), and logs and
+prints the verdict.
 """
 
 from __future__ import annotations
@@ -21,35 +21,33 @@ from typing import Any
 import numpy as np
 from eaglemission.missions.approach import MissionState
 from eaglemission.missions.approach_config import ApproachConfig
-from eaglemission.missions.evaluator import Evaluation, evaluate
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.result import MissionResult
 from eaglemission.missions.runner import MissionRunner
 
 from eaglemission.config import MissionFile
-from eaglemission.context import WORLD
-from eaglemission.interfaces import FlightParts, FlightRecorder, MissionHooks
+from eaglemission.interfaces import FlightParts, FlightRecorder, Judge, MissionHooks, Verdict
 from eaglemission.types import Frame, VehicleState
 
 
 @dataclass
 class ApproachOutcome:
-    """A flown approach mission: what the mission reported, what the evaluator judged."""
+    """A flown approach mission: what the mission reported and, when the flight had a judge,
+    its verdict (``evaluation``)."""
 
     result: MissionResult
-    evaluation: Evaluation
-    trajectory: list[VehicleState]
-    """TRUE states when ``judged_on == "truth"``, else the autopilot's reported states."""
-    judged_on: str
-    target_position_ned_m: tuple[float, float, float] | None
+    reported: list[VehicleState]
+    """The autopilot's reported states (50 Hz)."""
     log: MissionLog
     wall_s: float
     sim_s: float
     config: MissionFile
     estimated_trajectory: list[tuple[int, tuple[float, float, float]]] = field(
         default_factory=list)
-    world: object | None = None
     t0_ns: int = 0
+    evaluation: Any = None
+    """The judge's :class:`~eaglemission.interfaces.Verdict`; None: not judged."""
+    judge: Judge | None = None
 
     @property
     def final_state(self) -> str:
@@ -60,34 +58,51 @@ class ApproachOutcome:
         return self.result.reason
 
     @property
+    def judged_on(self) -> str:
+        """``"truth"``, ``"estimate"`` or ``"none"`` (no judge)."""
+        return "none" if self.evaluation is None else str(self.evaluation.judged_on)
+
+    @property
+    def trajectory(self) -> list[VehicleState]:
+        """The states judged (TRUE ones when ``judged_on == "truth"``), else the reported."""
+        traj = getattr(self.evaluation, "trajectory", None)
+        return list(traj) if traj else self.reported
+
+    @property
+    def target_position_ned_m(self) -> tuple[float, float, float] | None:
+        target: tuple[float, float, float] | None = getattr(
+            self.evaluation, "target_position_ned_m", None)
+        return target
+
+    @property
     def truth_success(self) -> bool | None:
-        """The evaluator's verdict when it judged on ground truth, else None."""
+        """The judge's verdict when it judged on ground truth, else None."""
         if self.judged_on != "truth" or self.target_position_ned_m is None:
             return None
-        return self.evaluation.success
+        return bool(self.evaluation.success)
 
     @property
     def speedup(self) -> float:
         return self.sim_s / self.wall_s if self.wall_s > 0 else math.inf
 
-    def reevaluate(self, *, expected_action: str | None) -> Evaluation:
-        """Judge again with the safe action a fault prescribes (fault tests)."""
-        self.evaluation = _evaluate(self.result, self.trajectory, self.config,
-                                    self.target_position_ned_m, self.t0_ns, expected_action)
-        return self.evaluation
+    def reevaluate(self, *, expected_action: str | None) -> Verdict | None:
+        """Judge again with the safe action a fault prescribes (fault campaigns)."""
+        if self.judge is not None:
+            self.evaluation = self.judge.judge(self.result, self.reported, t0_ns=self.t0_ns,
+                                               expected_action=expected_action)
+        verdict: Verdict | None = self.evaluation
+        return verdict
 
     def report_lines(self) -> list[str]:
-        r, ev = self.result, self.evaluation
+        r = self.result
         out = [f"final state: {r.final_state} ({r.reason}; action {r.action})",
                f"flew {self.sim_s:.1f} s in {self.wall_s:.1f} s wall ({self.speedup:.1f}x real "
                "time)"]
         if r.t_grasp_ready_s is not None:
             out.append(f"GRASP_READY at t = {r.t_grasp_ready_s:.2f} s")
-        basis = ("true" if self.judged_on == "truth"
-                 else "judged on the autopilot's estimate (no ground truth):")
-        if ev.horizontal_error_m is not None:
-            out.append(f"{basis} tool-point error: horizontal {ev.horizontal_error_m * 100:.1f} "
-                       f"cm, grasp distance {ev.grasp_distance_m:.3f} m")
+        lines = [] if self.evaluation is None else list(self.evaluation.report_lines())
+        judged = [line for line in lines if "tool-point error" in line]
+        out += judged
         if r.estimated_tool_errors_m is not None:
             h, d = r.estimated_tool_errors_m
             out.append(f"mission's own estimate: horizontal {h * 100:.1f} cm, grasp distance "
@@ -104,27 +119,15 @@ class ApproachOutcome:
         for cam, n in r.frame_counts.items():
             out.append(f"camera {cam}: {n['grabbed']} frames grabbed = {n['processed']} processed "
                        f"+ {n['skipped']} skipped + {n['dropped']} dropped")
-        out.append(f"envelope violations ({'true' if self.judged_on == 'truth' else 'reported'}"
-                   f" trajectory): {len(ev.violations)}" + "".join(
-                       f"\n  {v.kind} at {v.t_s:.1f} s: {v.value:.2f} > {v.limit:.2f} for "
-                       f"{v.duration_s:.1f} s" for v in ev.violations))
-        verdict = "SUCCESS" if ev.success else "FAILURE"
-        if self.truth_success is None:
-            verdict += " (not judged on ground truth)"
-        out.append(f"evaluator: {verdict}" + (f" -- {ev.explanation}" if ev.explanation else ""))
+        out += [line for line in lines if line not in judged]
+        if self.evaluation is None:
+            out.append("not judged (no judge for this flight: docs/mission.md)")
         return out
 
     def plot(self, path: Path) -> None:
         from eaglemission.missions.plot import plot_outcome
 
         plot_outcome(self, self.config, path)
-
-
-def _evaluate(result: MissionResult, trajectory: list[VehicleState], cfg: MissionFile,
-              target: tuple[float, float, float] | None, t0_ns: int,
-              expected_action: str | None) -> Evaluation:
-    return evaluate(result, trajectory, cfg, target, t0_ns=t0_ns,
-                    expected_action=expected_action)
 
 
 def _to_recorder(recorder: FlightRecorder) -> Callable[[Frame, Any], None]:
@@ -218,17 +221,9 @@ class ApproachMission:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await t
         wall = time.perf_counter() - wall0
-        world = p.shared.get(WORLD)
-        target: tuple[float, float, float] | None = None
-        truth_target = getattr(world, "target_position_ned_m", None)
-        if truth_target is not None:
-            target = (float(truth_target[0]), float(truth_target[1]), float(truth_target[2]))
-        if p.truth is not None:
-            trajectory, judged_on = list(p.truth.trajectory()), "truth"
-        else:
-            trajectory, judged_on = reported, "estimate"
-        ev = _evaluate(result, trajectory, cfg, target, t0_ns, None)
-        mlog.write("evaluation", judged_on=judged_on, **ev.as_dict())
+        verdict = None if p.judge is None else p.judge.judge(result, reported, t0_ns=t0_ns)
+        if verdict is not None:
+            mlog.write("evaluation", **verdict.as_dict())
         mlog.close()
-        return ApproachOutcome(result, ev, trajectory, judged_on, target, mlog, wall,
-                               (clock.now_ns() - t0_ns) * 1e-9, cfg, estimated, world, t0_ns)
+        return ApproachOutcome(result, reported, mlog, wall, (clock.now_ns() - t0_ns) * 1e-9,
+                               cfg, estimated, t0_ns, verdict, p.judge)

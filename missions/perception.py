@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter, Tracker
-from eaglemission.mcap_foxglove import saliency_thumbnail
+from eaglemission.recording.foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
     DetectionResult,

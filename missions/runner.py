@@ -56,15 +56,15 @@ from eaglemission.missions.tracking import TargetTracking
 from eaglemission.missions.views import project_target
 
 from eaglemission import errors
-from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.clock import Clock, run_blocking
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
+from eaglemission.geometry.geofence import inside_geofence
 from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Tracker, Vehicle
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
-from eaglemission.provenance import config_record
-from eaglemission.safety import SafeVehicle
-from eaglemission.safety_geometry import inside_geofence
+from eaglemission.recording.provenance import config_record
+from eaglemission.safety.autopilot_guard import AutopilotGuard
+from eaglemission.safety.envelope import SafeVehicle
 from eaglemission.types import XYZ, FlightMode, Frame, VehicleState
 
 log = logging.getLogger(__name__)
@@ -85,7 +85,7 @@ class MissionRunner:
     Parameters
     ----------
     cfg : the mission file; params : the mission plugin's params
-    vehicle : a connected Vehicle; wrapped in :class:`~eaglemission.safety.SafeVehicle` here
+    vehicle : a connected Vehicle; wrapped in :class:`~eaglemission.safety.envelope.SafeVehicle` here
         unless it already is one, so no plugin can bypass the envelope
     cameras : ``{"wide": Camera, "narrow": Camera}``; models : their (nominal) models
     detectors : one detector per camera (their temporal state is per camera)

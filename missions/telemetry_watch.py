@@ -2,7 +2,7 @@
 vehicle's events, all logged (a telemetry record every 0.2 s).
 
 Every sample the mission uses passes :meth:`TelemetryWatch.current`: the time-base checks of
-:mod:`eaglemission.telemetry_time` refuse duplicated and out-of-order samples (the mission goes
+:mod:`eaglemission.telemetry.time_checks` refuse duplicated and out-of-order samples (the mission goes
 on with the newest good one) and re-anchor on a jump of the autopilot's clock; telemetry older
 than ``safety.max_telemetry_age_s`` counts as a lost link. Each is logged as
 ``fault_detected`` (at most once a second per kind)."""
@@ -17,7 +17,7 @@ from eaglemission.missions.tracking import TargetTracking
 
 from eaglemission.clock import Clock
 from eaglemission.interfaces import Vehicle
-from eaglemission.telemetry_time import CLOCK_JUMP, TelemetryTimeCheck
+from eaglemission.telemetry.time_checks import CLOCK_JUMP, TelemetryTimeCheck
 from eaglemission.types import VehicleState
 
 PERIOD_S = 0.02

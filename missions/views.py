@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from eaglemission.fov import target_in_narrow_view
 from eaglemission.geometry import CameraModel, camera_pose_ned
+from eaglemission.geometry.fov import target_in_narrow_view
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.types import Detection, VehicleState
 
@@ -67,7 +67,7 @@ def fill_fraction(model: CameraModel, px: NDArray[np.float64]) -> float:
 def wide_detection_in_narrow(det: Detection, wide: CameraModel, narrow: CameraModel,
                              state: VehicleState, target_ned_m: Sequence[float]) -> bool:
     """Paper Fig. 4(c): the wide-image detection lies inside the narrow camera's view drawn in
-    the wide image (:func:`eaglemission.fov.target_in_narrow_view`)."""
+    the wide image (:func:`eaglemission.geometry.fov.target_in_narrow_view`)."""
     height = float(target_ned_m[2]) - float(state.position_ned_m[2])  # above the target's top
     if height <= 0:
         return False

@@ -43,7 +43,7 @@ def short_gc_pauses(request: pytest.FixtureRequest) -> Iterator[None]:
     module fixtures), and a full collection then stops every thread for up to 1.3 s, longer
     than the offboard watchdog's 0.5 s in a real-time test that is not a flight. After each
     test what it left is collected and the survivors frozen (:func:`gc.freeze`), so a test's
-    full collections walk only what it allocated, as a flight's do (eaglemission/gc_pauses.py).
+    full collections walk only what it allocated, as a flight's do (eaglemission/flight/heap.py).
     Tests marked ``gc_unfrozen`` run on the whole heap, unfrozen."""
     if request.node.get_closest_marker("gc_unfrozen") is not None:
         gc.unfreeze()

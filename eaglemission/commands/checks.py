@@ -29,7 +29,7 @@ def core_checks(cfg: MissionFile) -> list[str]:
     if m.cruise_speed_mps > s.max_horizontal_speed_mps:
         problems.append(f"mission.cruise_speed_mps: exceeds safety.max_horizontal_speed_mps "
                         f"({s.max_horizontal_speed_mps}), got {m.cruise_speed_mps}")
-    from eaglemission.safety_geometry import inside_geofence
+    from eaglemission.geometry.geofence import inside_geofence
 
     for i, wp in enumerate(m.route):
         if not inside_geofence(s.geofence, wp.north_m, wp.east_m):
@@ -39,7 +39,7 @@ def core_checks(cfg: MissionFile) -> list[str]:
         cam = getattr(cfg.cameras, cid)
         if cam.calibration_file is None or "resolution_px" not in cam.model_fields_set:
             continue
-        from eaglemission.calibration import load_calibration
+        from eaglemission.geometry.calibration import load_calibration
 
         try:
             cal = load_calibration(cam.calibration_file)

@@ -27,7 +27,7 @@ def plot(path: str, out: str) -> None:
 
     from eaglemission import registry
     from eaglemission.config import MissionFile
-    from eaglemission.mcap_tools import log_records
+    from eaglemission.recording.mcap_reader import log_records
 
     records = list(log_records(path))
     cfg_rec = next((r for r in records if r.get("kind") == "config"), None)
@@ -41,7 +41,7 @@ def plot(path: str, out: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from eaglemission.mcap_tools import recover_all, summarize
+    from eaglemission.recording.mcap_reader import recover_all, summarize
 
     try:
         if args.recover:

@@ -1,7 +1,7 @@
 """``eaglemission replay FILE.mcap [CONFIG]``: fly a recording's frames and vehicle answers
 through the same detector -> estimator -> state machine in virtual time, and compare the
 replay's setpoints, envelope verdicts and state changes with the recording's
-(:mod:`eaglemission.replay_compare`; docs/recording.md, "Replaying a recording").
+(:mod:`eaglemission.recording.compare`; docs/recording.md, "Replaying a recording").
 
 Without CONFIG the mission file embedded in the recording (its ``config`` record) is flown;
 with CONFIG that file's detector, estimators and mission params. Either way both cameras and
@@ -24,9 +24,9 @@ from eaglemission.commands import Command
 @dataclass
 class ReplayResult:
     comparison: Any
-    """:class:`~eaglemission.replay_compare.Comparison`."""
+    """:class:`~eaglemission.recording.compare.Comparison`."""
     flight: Any
-    """:class:`~eaglemission.assembly.FlightResult` of the replay."""
+    """:class:`~eaglemission.flight.assembly.FlightResult` of the replay."""
     clock: str
     """How the recording was flown: ``virtual`` or ``wall``."""
     images: str
@@ -36,12 +36,12 @@ class ReplayResult:
 def replay(path: str | Path, config: str | Path | None = None) -> ReplayResult:
     """Replay ``path`` (with the mission file ``config``, else the recorded one) and compare.
     Raises ConfigError for a file or config that cannot be replayed."""
-    from eaglemission.assembly import FlightOptions, fly_sync
     from eaglemission.config import MissionFile, load_config
     from eaglemission.errors import ConfigError
+    from eaglemission.flight.run import FlightOptions, fly_sync
     from eaglemission.interfaces import MissionHooks
-    from eaglemission.mcap_tools import log_records, metadata
-    from eaglemission.replay_compare import compare, replay_config_data
+    from eaglemission.recording.compare import compare, replay_config_data
+    from eaglemission.recording.mcap_reader import log_records, metadata
 
     rec_path = Path(path)
     if not rec_path.is_file():
@@ -79,8 +79,8 @@ def _add(p: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from eaglemission.assembly import EXIT_CONFIG, EXIT_DONE, EXIT_ERROR, EXIT_REPLAY_DIVERGED
     from eaglemission.errors import ConfigError
+    from eaglemission.flight.run import EXIT_CONFIG, EXIT_DONE, EXIT_ERROR, EXIT_REPLAY_DIVERGED
 
     try:
         res = replay(args.file, args.config)

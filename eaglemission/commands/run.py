@@ -74,15 +74,6 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def has_link_faults(data: dict[str, Any]) -> bool:
-    """A mission document whose ``faults:`` section injects a link kind (the emulator's UDP
-    path carries them through the mavsdk vehicle's fault relay)."""
-    from eaglemission.fault_injection import LINK_KINDS
-
-    inject = (data.get("faults") or {}).get("inject") or []
-    return any(isinstance(f, dict) and f.get("kind") in LINK_KINDS for f in inject)
-
-
 @contextlib.contextmanager
 def emulator_process(mission_path: str | None, status_json: str | None = None, *,
                      mission_yaml: str | None = None) -> Iterator[str]:
@@ -149,7 +140,7 @@ def _record_options(section: Any, path: Path, quality: int | None, lossless: boo
                     ) -> Any:
     """``--record FILE.mcap``: the config's ``recording`` settings (quality, splitting, disk
     check) with this path; ``--record-quality`` over the config's quality."""
-    from eaglemission.mcap_options import RecordOptions
+    from eaglemission.recording.options import RecordOptions
 
     if section is None:
         return RecordOptions(path, jpeg_quality=75 if quality is None else quality,
@@ -160,10 +151,9 @@ def _record_options(section: Any, path: Path, quality: int | None, lossless: boo
 
 
 def _live_options(args: argparse.Namespace, section: Any) -> Any:
-    """The flight's :class:`~eaglemission.live.LiveOptions` (None: not live); raises
+    """The flight's :class:`~eaglemission.recording.live.LiveOptions` (None: not live); raises
     ValueError for a bad ``--live`` or ``live.listen``."""
-    from eaglemission import live
-
+    from eaglemission.recording import live
     if args.no_live or (args.live is None and section is None):
         return None
     if args.live and (args.live.lower().endswith((".yaml", ".yml")) or Path(args.live).is_file()):
@@ -175,10 +165,10 @@ def _live_options(args: argparse.Namespace, section: Any) -> Any:
 def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from eaglemission import assembly
     from eaglemission.commands.checks import run_checks
     from eaglemission.config import MissionFile, load_config
     from eaglemission.errors import ConfigError, EagleMissionError
+    from eaglemission.flight import assembly, run
     from eaglemission.interfaces import MissionHooks
 
     console = Console()
@@ -191,7 +181,7 @@ def _run(args: argparse.Namespace) -> int:
             raise ConfigError(problems, source=args.config or "<embedded>")
     except ConfigError as exc:
         _print(err, f"invalid: {exc}")
-        return assembly.EXIT_CONFIG
+        return run.EXIT_CONFIG
     for w in warnings:
         _print(err, f"warning: {w}")
     data = cfg.model_dump()
@@ -205,7 +195,7 @@ def _run(args: argparse.Namespace) -> int:
         live_options = _live_options(args, cfg.live)
     except ValueError as exc:
         _print(err, f"error: {exc}")
-        return assembly.EXIT_CONFIG
+        return run.EXIT_CONFIG
     source = args.config or "<embedded sitl_synthetic.yaml>"
     _print(console, f"eaglemission run {source}")
 
@@ -224,26 +214,26 @@ def _run(args: argparse.Namespace) -> int:
         if Path(args.record).exists():
             _print(err, f"error: --record {args.record}: exists (recordings are never "
                         "overwritten): choose a new name")
-            return assembly.EXIT_CONFIG
+            return run.EXIT_CONFIG
         if args.record_quality is not None and not 1 <= args.record_quality <= 100:
             _print(err, "error: --record-quality: 1..100")
-            return assembly.EXIT_CONFIG
+            return run.EXIT_CONFIG
         record_mcap = _record_options(cfg.recording, Path(args.record), args.record_quality,
                                       args.record_lossless)
     elif args.record:
-        from eaglemission.recording import RunRecorder
+        from eaglemission.recording.folder import RunRecorder
 
         try:
             virtual = not (args.realtime or args.vehicle == "emulator"
                            or assembly.plan(cfg).wall_clock)
         except EagleMissionError as exc:
             _print(err, f"invalid: {exc}")
-            return assembly.EXIT_CONFIG
+            return run.EXIT_CONFIG
         try:
             recorder = RunRecorder(Path(args.record), when_full="wait" if virtual else "drop")
         except (FileExistsError, OSError) as exc:
             _print(err, f"error: --record {args.record}: {exc}")
-            return assembly.EXIT_CONFIG
+            return run.EXIT_CONFIG
         hooks_kw.update(on_frame=recorder.write_frame, on_telemetry=recorder.write_state,
                         record_all=True)
 
@@ -251,7 +241,7 @@ def _run(args: argparse.Namespace) -> int:
         if recorder is not None:
             recorder.set_models({c: cam.model for c, cam in asm.cameras.items()})
 
-    options = assembly.FlightOptions(
+    options = run.FlightOptions(
         realtime=args.realtime, dry_run=args.dry_run,
         confirm=None if (args.yes or args.vehicle == "emulator") else _confirm,
         handle_signals=True, on_header=on_header, on_line=lambda s: _print(console, s),
@@ -266,15 +256,14 @@ def _run(args: argparse.Namespace) -> int:
                 path, tmp = _mission_file_path(args.config)
                 url = stack.enter_context(emulator_process(path))
                 data["vehicle"] = {"type": "mavsdk",
-                                   "params": {"url": url, "connect_timeout_s": 30,
-                                              "fault_relay": has_link_faults(data)}}
+                                   "params": {"url": url, "connect_timeout_s": 30}}
             try:
                 cfg = MissionFile.model_validate(data)
             except ValueError as exc:
                 _print(err, f"invalid: {exc}")
-                return assembly.EXIT_CONFIG
+                return run.EXIT_CONFIG
             t0 = time.perf_counter()
-            result = assembly.fly_sync(cfg, options)
+            result = run.fly_sync(cfg, options)
     finally:
         if recorder is not None:
             recorder.close()

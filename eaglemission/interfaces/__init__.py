@@ -4,6 +4,7 @@ from eaglemission.interfaces.camera import Camera
 from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import CameraView, Estimator
 from eaglemission.interfaces.fitter import PlaneFitter
+from eaglemission.interfaces.judge import Judge, Verdict
 from eaglemission.interfaces.mission import (
     FlightParts,
     FlightRecorder,
@@ -11,11 +12,12 @@ from eaglemission.interfaces.mission import (
     MissionHooks,
     MissionOutcome,
 )
+from eaglemission.interfaces.section import Section
 from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 from eaglemission.interfaces.world import World
 
-__all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "FlightRecorder", "GroundTruth",
-           "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter", "Tracker", "Vehicle",
-           "World"]
+__all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "FlightRecorder",
+           "GroundTruth", "Judge", "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter",
+           "Section", "Tracker", "Vehicle", "Verdict", "World"]

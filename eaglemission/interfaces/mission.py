@@ -8,13 +8,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from eaglemission.clock import Clock
-from eaglemission.context import SharedContext
 from eaglemission.interfaces.camera import Camera
 from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import Estimator
 from eaglemission.interfaces.fitter import PlaneFitter
+from eaglemission.interfaces.judge import Judge
 from eaglemission.interfaces.tracker import Tracker
-from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 
 if TYPE_CHECKING:
@@ -23,11 +22,12 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class FlightParts:
-    """Everything the assembly built for one flight (:mod:`eaglemission.assembly`).
+    """Everything the assembly built for one flight (:mod:`eaglemission.flight.assembly`).
 
-    ``vehicle`` is already wrapped in :class:`eaglemission.safety.SafeVehicle` and connected
-    when the mission runs; the cameras are open. ``truth`` and ``shared`` are for the
-    evaluator only (ground truth, the fake world): a mission never steers by them.
+    ``vehicle`` is already wrapped in :class:`eaglemission.safety.envelope.SafeVehicle` and
+    connected when the mission runs; the cameras are open. ``judge`` (None: nothing judges this
+    flight) is the only holder of ground truth: the mission hands it its report at the end and
+    never steers by it.
     """
 
     config: MissionFile
@@ -37,13 +37,12 @@ class FlightParts:
     detectors: Mapping[str, Detector]
     coarse: Estimator
     fine: Estimator
-    shared: SharedContext
     fitter: PlaneFitter | None = None
     tracker: Tracker | None = None
-    truth: GroundTruth | None = None
+    judge: Judge | None = None
     realtime: bool = False
     autopilot_guard: Any = None
-    """The assembly's :class:`~eaglemission.autopilot_guard.AutopilotGuard` (already applied:
+    """The assembly's :class:`~eaglemission.safety.autopilot_guard.AutopilotGuard` (already applied:
     the mission logs its report and restores after landing); None: the mission makes its own."""
 
 
@@ -83,7 +82,7 @@ class MissionHooks:
     """Called with every telemetry snapshot the mission reads (recording)."""
     recorder: FlightRecorder | None = None
     """Gets every mission-log record and every processed frame (``run --record FILE.mcap``:
-    :class:`eaglemission.mcap_record.McapRecorder`, opened by the assembly)."""
+    :class:`eaglemission.recording.mcap_writer.McapRecorder`, opened by the assembly)."""
     record_all: bool = False
     """Grab both cameras whenever airborne (so a recording has both streams)."""
     grasp_callback: Callable[[], Any] | None = None

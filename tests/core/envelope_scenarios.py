@@ -9,13 +9,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from eaglemission.drivers.vehicles.dynamics import DynamicsParams
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.vehicles.multicopter.dynamics import DynamicsParams
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 
 from eaglemission.clock import ManualClock
 from eaglemission.config import GeofenceConfig, SafetyConfig
-from eaglemission.safety import SafeVehicle
+from eaglemission.safety.envelope import SafeVehicle
 from eaglemission.types import Setpoint
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eaglemission.calibration import Calibration, load_calibration, save_calibration
 from eaglemission.config import CameraSection
 from eaglemission.errors import ConfigError
+from eaglemission.geometry.calibration import Calibration, load_calibration, save_calibration
 
 K = np.array([[1203.5, 0.0, 641.2], [0.0, 1201.9, 478.7], [0.0, 0.0, 1.0]])
 D = (-0.21, 0.08, 0.0012, -0.0007, -0.011)

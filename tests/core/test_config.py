@@ -311,7 +311,7 @@ def test_validate_cli_names_the_path_and_value(tmp_path: Path) -> None:
 def test_validate_cli_accepts_every_shipped_config(name: str, tmp_path: Path) -> None:
     cwd = None
     if name == "replay.yaml":  # it names a recording relative to the working directory
-        from eaglemission.recording import RunRecorder
+        from eaglemission.recording.folder import RunRecorder
         from eaglemission.types import VehicleState
 
         with RunRecorder(tmp_path / "recordings" / "run1") as rec:
@@ -392,11 +392,11 @@ def test_validate_cli_cross_checks(tmp_path: Path) -> None:
 
 
 def test_configuration_reference_is_up_to_date() -> None:
-    from eaglemission.config_doc import schema_markdown
+    from eaglemission.config.doc import schema_markdown
 
     doc = (REPO / "docs" / "configuration.md").read_text()
     assert doc.strip() == schema_markdown().strip(), (
-        "docs/configuration.md is stale: run `python -m eaglemission.config_doc > docs/configuration.md`")
+        "docs/configuration.md is stale: run `python -m eaglemission.config.doc > docs/configuration.md`")
 
 
 def test_calibration_paths_resolve_relative_to_the_mission_file(tmp_path: Path) -> None:

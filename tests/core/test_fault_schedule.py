@@ -5,10 +5,10 @@ however short the window (a 0.05 s truncated frame between two 0.1 s grabs used 
 from __future__ import annotations
 
 import numpy as np
-from eaglemission.drivers.cameras.faulty import FaultyCamera
+from eaglemission.lab.faults.config import FaultSpec
+from eaglemission.lab.faults.faulty_camera import FaultyCamera
+from eaglemission.lab.faults.schedule import ActiveFaults
 
-from eaglemission.fault_schedule import ActiveFaults
-from eaglemission.faults_config import FaultSpec
 from eaglemission.geometry import CameraModel
 from eaglemission.types import Frame
 

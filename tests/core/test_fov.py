@@ -7,10 +7,11 @@ import math
 
 import numpy as np
 import pytest
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig, world_config
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig, world_config
 from world_helpers import detection_from_polygon
 
-from eaglemission.fov import (
+from eaglemission.geometry import camera_pose_ned, euler_to_quat
+from eaglemission.geometry.fov import (
     map_points,
     narrow_fov_in_wide,
     pixel_homography,
@@ -19,7 +20,6 @@ from eaglemission.fov import (
     relative_pose,
     target_in_narrow_view,
 )
-from eaglemission.geometry import camera_pose_ned, euler_to_quat
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +31,7 @@ def mission():
 
 @pytest.fixture(scope="module")
 def world(mission):
-    world_mod = pytest.importorskip("eaglemission.drivers.cameras.world")
+    world_mod = pytest.importorskip("eaglemission.lab.world.render")
     return world_mod.SyntheticWorld(world_config(mission), mission.target, seed=1, extent_m=80.0)
 
 
@@ -122,7 +122,7 @@ def test_predicate_rejects_garbage(cams):
 def test_feature_refinement_recovers_a_mount_error(mission, cams):
     """With a 1.5 deg mount error in the rendering cameras, the calibrated footprint is off by
     ~15 wide px; SIFT + RANSAC on the textured ground brings it back to a few px."""
-    from eaglemission.drivers.cameras.world import SyntheticWorld
+    from eaglemission.lab.world.render import SyntheticWorld
 
     wide, narrow = cams
     sim = SyntheticWorldConfig(**{**world_config(mission).model_dump(), "mount_error_deg": 1.5,

@@ -1,5 +1,5 @@
-"""The design card's layout: core imports no plugin, every package folder is installed,
-plugin folders are imported only through ``eaglemission.``."""
+"""The design card's layout: core imports no plugin, the product never imports the lab, every
+package folder is installed, plugin folders are imported only through ``eaglemission.``."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 PLUGIN_FOLDERS = ("drivers", "detectors", "estimators", "missions")
 PLUGIN_PACKAGES = tuple(f"eaglemission.{f}" for f in PLUGIN_FOLDERS)
+LAB_PACKAGE = "eaglemission.lab"
 
 
 def imported_modules(path: Path) -> set[str]:
@@ -27,17 +28,30 @@ def test_core_imports_no_plugin() -> None:
     offenders = []
     for py in (REPO / "eaglemission").rglob("*.py"):
         for mod in imported_modules(py):
-            if mod.startswith(PLUGIN_PACKAGES):
+            if mod.startswith((*PLUGIN_PACKAGES, LAB_PACKAGE)):
                 offenders.append(f"{py.relative_to(REPO)} imports {mod}")
     assert not offenders, offenders
 
 
+def test_the_product_never_refers_to_the_lab() -> None:
+    """What a field computer runs reads on its own: no product module imports the lab, not
+    even inside a function or by a module name in a string (the lab reaches the product only
+    through entry points: the simulated drivers, the faults section, the judge)."""
+    offenders = []
+    for mod, path in _module_names().items():
+        if _folder(mod) == "lab":
+            continue
+        offenders += [f"{path.relative_to(REPO)} -> {ref}" for ref in _references(path)
+                      if ref == LAB_PACKAGE or ref.startswith(LAB_PACKAGE + ".")]
+    assert offenders == []
+
+
 def test_plugin_folders_never_imported_as_top_level_names() -> None:
     offenders = []
-    for folder in (*PLUGIN_FOLDERS, "eaglemission", "tests", "benchmarks"):
+    for folder in (*PLUGIN_FOLDERS, "lab", "eaglemission", "tests", "benchmarks"):
         for py in (REPO / folder).rglob("*.py"):
             for mod in imported_modules(py):
-                if mod.split(".")[0] in PLUGIN_FOLDERS:
+                if mod.split(".")[0] in (*PLUGIN_FOLDERS, "lab"):
                     offenders.append(f"{py.relative_to(REPO)} imports {mod}")
     assert not offenders, offenders
 
@@ -67,7 +81,7 @@ def test_plugin_packages_import_from_installed_location() -> None:
 FOLDER_OF_PACKAGE = {"eaglemission": "eaglemission", "eaglemission.drivers": "drivers",
                      "eaglemission.detectors": "detectors",
                      "eaglemission.estimators": "estimators", "eaglemission.missions": "missions",
-                     "eaglemission.configs": "configs"}
+                     "eaglemission.configs": "configs", "eaglemission.lab": "lab"}
 
 
 def _module_names() -> dict[str, Path]:
@@ -115,7 +129,7 @@ def test_no_plugin_folder_imports_another() -> None:
     offenders = []
     for mod, path in _module_names().items():
         here = _folder(mod)
-        if here in ("eaglemission", "configs"):
+        if here in ("eaglemission", "configs", "lab"):  # the lab may use every product part
             continue
         for ref in _references(path):
             there = _folder(ref)

@@ -26,7 +26,7 @@ from mcap.reader import make_reader
 
 from eaglemission.cli import main
 from eaglemission.config import MissionFile, load_config
-from eaglemission.live import LiveOptions, options_from_config, parse_listen
+from eaglemission.recording.live import LiveOptions, options_from_config, parse_listen
 
 pytest.importorskip("foxglove", reason="foxglove-sdk (pip install eaglemission[live])")
 
@@ -207,7 +207,7 @@ def test_bad_live_argument_is_a_config_error(tmp_path: Path, capsys) -> None:
 
 def test_throttle_on_mission_time_and_counts() -> None:
     """50 Hz telemetry and 25 Hz frames for 2 s of mission time: 10 Hz and 2 Hz go out."""
-    from eaglemission.live import LiveSink
+    from eaglemission.recording.live import LiveSink
     from eaglemission.types import Frame
 
     sink = LiveSink(LiveOptions(port=0))
@@ -231,7 +231,7 @@ def test_a_stalled_client_never_blocks_the_sink_nor_the_other_clients() -> None:
     """~19 MB to a client that stopped reading behind a 2 kB TCP window (far beyond the
     kernel's buffers and the server's 16-message backlog): every record is still published
     at once, and a reading client gets them to the last one."""
-    from eaglemission.live import LiveSink
+    from eaglemission.recording.live import LiveSink
 
     sink = LiveSink(LiveOptions(port=0, backlog_messages=16, queue_items=1000))
     out: dict[str, Any] = {}
@@ -272,7 +272,7 @@ def test_a_client_subscribing_late_gets_the_calibration_at_once() -> None:
     """The calibration was published before the client connected; the periodic repeat is an
     hour away: the subscription itself brings it (a CI run lost the race without this)."""
     from eaglemission.geometry import CameraModel
-    from eaglemission.live import LiveSink
+    from eaglemission.recording.live import LiveSink
 
     sink = LiveSink(LiveOptions(port=0, repeat_s=3600.0))
     sink.calibration("wide", CameraModel.from_lens("wide", focal_length_mm=2.8,

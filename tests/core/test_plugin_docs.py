@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from eaglemission import registry
-from eaglemission.assembly import FlightOptions, fly_sync
 from eaglemission.config import MissionFile, load_config
+from eaglemission.flight.run import FlightOptions, fly_sync
 from eaglemission.interfaces import MissionHooks
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"

@@ -10,8 +10,8 @@ import os
 
 import numpy as np
 import pytest
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 from envelope_scenarios import Leg, Scenario, fly
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -21,7 +21,7 @@ from eaglemission.config import GeofenceConfig, SafetyConfig
 from eaglemission.errors import SafetyViolation
 from eaglemission.geometry import geodetic_to_ned, ned_to_geodetic
 from eaglemission.interfaces import Vehicle
-from eaglemission.safety import Envelope, SafeVehicle
+from eaglemission.safety.envelope import Envelope, SafeVehicle
 from eaglemission.types import FlightMode, Setpoint, Waypoint
 
 L_SHAPE = [(-10.0, -10.0), (30.0, -10.0), (30.0, 5.0), (5.0, 5.0), (5.0, 30.0), (-10.0, 30.0)]
@@ -254,7 +254,7 @@ def test_true_trajectory_never_leaves_the_envelope(sc: Scenario) -> None:
 async def _low_hover(reference: str, seed: int) -> tuple[float, float, float]:
     """(estimate's vertical error up, m; true height after a setpoint 1 m below the ground;
     ground offset the envelope used), a vehicle whose altitude estimate is off by ~0.35 m."""
-    from eaglemission.drivers.vehicles.simulated import SimulatedVehicleConfig
+    from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicleConfig
     cfg = SimulatedVehicleConfig(
         seed=seed, rangefinder={"enabled": True, "noise_std_m": 0.01},  # type: ignore[arg-type]
         dynamics={"estimate_vertical_std_m": 0.35, "estimate_max_error_m": 0.45,  # type: ignore[arg-type]

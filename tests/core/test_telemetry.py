@@ -17,7 +17,7 @@ from eaglemission.geometry import (
     intersect_ray_with_horizontal_plane,
     quat_to_R,
 )
-from eaglemission.telemetry import TelemetryHistory, interpolate_states
+from eaglemission.telemetry.history import TelemetryHistory, interpolate_states
 from eaglemission.types import VehicleState
 
 MS = 1_000_000
@@ -94,7 +94,7 @@ def test_extrapolation_uses_body_rates():
     assert _yaw(ext) == pytest.approx(1.2 + 1.8, abs=1e-9)
     # Body rates are in FRD: pitched 20 deg up, a body yaw rate is not a pure NED yaw rate.
     q0 = euler_to_quat(0.0, 20.0, 0.0)
-    from eaglemission.telemetry import rotate_by_body_rates
+    from eaglemission.telemetry.history import rotate_by_body_rates
 
     q1 = rotate_by_body_rates(q0, (0.0, 0.0, rate), 0.03)
     R_rel = quat_to_R(q0).T @ quat_to_R(q1)

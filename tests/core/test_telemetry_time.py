@@ -1,15 +1,15 @@
-"""The telemetry time-base checks (eaglemission/telemetry_time.py) and the simulated vehicle's
-link timing faults they catch (drivers/vehicles/simulated_link.py), on the real vehicle."""
+"""The telemetry time-base checks (eaglemission/telemetry/time_checks.py) and the simulated vehicle's
+link timing faults they catch (lab/vehicles/simulated/link.py), on the real vehicle."""
 
 from __future__ import annotations
 
 import asyncio
 
 import pytest
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
 
 from eaglemission.clock import ManualClock
-from eaglemission.telemetry_time import (
+from eaglemission.telemetry.time_checks import (
     CLOCK_JUMP,
     DUPLICATE,
     OUT_OF_ORDER,

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from eaglemission.detectors.boxes import (
+from eaglemission.lab.bench.boxes import (
     BoxFormatError,
     BoxScores,
     box_from_mask,

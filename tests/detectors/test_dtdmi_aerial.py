@@ -123,7 +123,7 @@ def test_aerial_backends_agree(rng):
 # -- real footage (skipped without ../shared) ---------------------------------------------------
 def _uav_frames(root, seq: str, n: int):
     import cv2
-    from eaglemission.detectors.boxes import parse_boxes
+    from eaglemission.lab.bench.boxes import parse_boxes
 
     folder = root / seq
     files = sorted((folder / "frames").glob("*.jpg"))[:n]
@@ -135,7 +135,7 @@ def test_aerial_regions_on_a_real_uav_sequence(uav_tracking):
     """The red car on the empty road (UAV123 car16_2, 12 frames at the mission's downscale 2):
     the aerial preset's best detection is on the car in most frames; the previous mission
     detector (field, T = 120) reports nothing there."""
-    from eaglemission.detectors.boxes import score_frame
+    from eaglemission.lab.bench.boxes import score_frame
 
     frames, boxes = _uav_frames(uav_tracking, "UAV123_10fps/car16_2", 12)
     aerial = registry.load("detectors", "dtdmi", {"preset": "aerial", "downscale": 2})
@@ -163,7 +163,7 @@ def test_regions_stay_silent_on_target_free_real_ground(aerial_ground):
 
     photo = cv2.imread(str(aerial_ground / "garfield_park" / "IMG_161122_163244_0002_RGB.jpg"))
     window = cv2.resize(photo[300:950, 100:967], (1280, 960), interpolation=cv2.INTER_CUBIC)
-    from eaglemission.assembly import load_appearance_image
+    from eaglemission.flight.assembly import load_appearance_image
 
     cfg = load_config(check_plugins=False)  # the mission's detector as it flies: with its image
     mission = registry.load("detectors", cfg.detector.type,

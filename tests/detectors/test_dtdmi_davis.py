@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
-from eaglemission.detectors.metrics import CurveAccumulator, normalize_map
+from eaglemission.lab.bench.metrics import CurveAccumulator, normalize_map
 
 from eaglemission.types import Frame
 

@@ -10,8 +10,8 @@ import pytest
 from eaglemission.detectors.dtdmi import DTDMIConfig, DTDMIDetector
 from eaglemission.detectors.dtdmi import equations as eq
 from eaglemission.detectors.dtdmi.config import resolve
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 
 from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount, euler_to_quat

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from eaglemission.detectors.metrics import (
+from eaglemission.lab.bench.metrics import (
     CurveAccumulator,
     auc,
     evaluate_sequence,

@@ -4,7 +4,7 @@ world (built once per module: ~3 s)."""
 from __future__ import annotations
 
 import pytest
-from eaglemission.drivers.worlds.synthetic import world_config
+from eaglemission.lab.world.synthetic import world_config
 
 from eaglemission.config import load_config
 
@@ -16,5 +16,5 @@ def mission():
 
 @pytest.fixture(scope="module")
 def world(mission):
-    world_mod = pytest.importorskip("eaglemission.drivers.cameras.world")
+    world_mod = pytest.importorskip("eaglemission.lab.world.render")
     return world_mod.SyntheticWorld(world_config(mission), mission.target, seed=1, extent_m=80.0)

@@ -22,8 +22,8 @@ from eaglemission.missions.log import MissionLog, read_log
 from fuzz_common import FuzzCrash
 
 from eaglemission.commands.log import COMMAND as LOG
-from eaglemission.mcap_record import McapRecorder
-from eaglemission.recording import TELEMETRY, read_telemetry, state_to_json
+from eaglemission.recording.folder import TELEMETRY, read_telemetry, state_to_json
+from eaglemission.recording.mcap_writer import McapRecorder
 from eaglemission.types import Frame, VehicleState
 
 TARGET = "files"

@@ -23,9 +23,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from eaglemission.drivers.vehicles.hil_truth import HilTruth
-from eaglemission.drivers.vehicles.mavlink_dialect import M
-from eaglemission.drivers.vehicles.mavlink_emulator import Px4Emulator
+from eaglemission.drivers.vehicles.mavsdk.hil_truth import HilTruth
+from eaglemission.lab.vehicles.emulator.dialect import M
+from eaglemission.lab.vehicles.emulator.emulator import Px4Emulator
 from fuzz_common import FLOATS, FuzzCrash, random_value
 
 TARGET = "mavlink"

@@ -16,7 +16,7 @@ import asyncio
 import random
 from typing import Any
 
-from eaglemission.missions.sim import run_simulation
+from eaglemission.lab.campaign.sim import run_simulation
 from fuzz_common import FuzzCrash
 from fuzz_telemetry import HostileTelemetry, check_sent
 

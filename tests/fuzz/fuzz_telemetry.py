@@ -21,14 +21,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
 from fuzz_common import FuzzCrash
 
 from eaglemission.clock import ManualClock
 from eaglemission.config import GeofenceConfig, SafetyConfig
 from eaglemission.errors import DriverError
 from eaglemission.geometry import geodetic_to_ned, ned_to_geodetic
-from eaglemission.safety import SafeVehicle, position_ok
+from eaglemission.safety.envelope import SafeVehicle, position_ok
 from eaglemission.types import GeoPoint, Setpoint, VehicleState, Waypoint
 
 TARGET = "telemetry"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import random
 
-from eaglemission.drivers.vehicles.hil_truth import HilTruth
+from eaglemission.drivers.vehicles.mavsdk.hil_truth import HilTruth
 from fuzz_mavlink import EmulatorRig, check_hil, check_stream, random_hil_json, random_stream
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -52,7 +52,7 @@ def test_deeply_nested_hil_json_is_counted_not_raised() -> None:
 def test_a_non_finite_offboard_setpoint_is_ignored_by_the_emulator() -> None:
     """Found by fuzzing: SET_POSITION_TARGET_LOCAL_NED with z = -inf made the handler raise
     (Setpoint.down_m must be finite), logged as "emulator: cannot handle"."""
-    from eaglemission.drivers.vehicles.mavlink_dialect import M
+    from eaglemission.lab.vehicles.emulator.dialect import M
 
     rig = EmulatorRig.new()
     try:

@@ -9,7 +9,7 @@ import random
 from dataclasses import replace
 
 import pytest
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
 from fuzz_telemetry import HostileTelemetry, check_sent, check_sequence, random_sequence
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -18,7 +18,7 @@ from eaglemission.clock import ManualClock
 from eaglemission.config import GeofenceConfig, SafetyConfig
 from eaglemission.errors import DriverError, SafetyViolation
 from eaglemission.geometry import ned_to_geodetic
-from eaglemission.safety import SafeVehicle
+from eaglemission.safety.envelope import SafeVehicle
 from eaglemission.types import Setpoint, VehicleState
 
 FUZZ = settings(derandomize=True, deadline=None, database=None,

@@ -1,17 +1,17 @@
 """Fault harness of the closed-loop fault tests: a mission file's ``faults:`` section, flown
 through the same assembly as ``eaglemission run`` (the injection lives in the real plugins:
-drivers/cameras/faulty.py, eaglemission/fault_wrappers.py, the simulated vehicle)."""
+lab/faults/faulty_camera.py, lab/faults/wrappers.py, the simulated vehicle)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
 
+from eaglemission.lab.campaign.sim import run_simulation
+from eaglemission.lab.faults.outcomes import COMPLETE, expected_action
 from eaglemission.missions.mission import ApproachOutcome
-from eaglemission.missions.sim import run_simulation
 
 from eaglemission.config import MissionFile
-from eaglemission.faults_outcomes import COMPLETE, expected_action
 
 # the old harness's names for some kinds
 _ALIASES = {"camera_dropout": "camera_drop", "battery_low": "battery_drain"}

@@ -9,12 +9,12 @@ import asyncio
 from pathlib import Path
 from typing import Any
 
+from eaglemission.lab.campaign.sim import run_simulation
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import run_simulation
 from mission_helpers import variant
 
-from eaglemission.assembly import EXIT_PREFLIGHT, FlightOptions, fly_sync
 from eaglemission.config import MissionFile
+from eaglemission.flight.run import EXIT_PREFLIGHT, FlightOptions, fly_sync
 
 HIGH_RTL_M = 28.0  # above the envelope's max_altitude_m (20 m), as PX4's 30 m default
 
@@ -69,7 +69,7 @@ def test_refuse_mode_refuses_with_the_parameter_and_the_envelope_key(
 
 
 def test_plan_sets_speeds_and_heights_inside_the_envelope(fast_config: MissionFile) -> None:
-    from eaglemission.autopilot_guard import plan
+    from eaglemission.safety.autopilot_guard import plan
 
     s = fast_config.safety  # 20 m, 1.5 m/s vertical, 4 m/s horizontal; cruise at 5 m
     px4 = {"RTL_RETURN_ALT": 30.0, "RTL_DESCEND_ALT": 10.0, "RTL_CONE_ANG": 45.0,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import asyncio
 
-from eaglemission.missions.campaign import crash_explanation
+from eaglemission.lab.campaign.campaign import crash_explanation
 
 
 async def _fails_in_a_task_group() -> None:

@@ -16,8 +16,8 @@ from typing import Any
 
 import pytest
 import yaml
-from eaglemission.missions.campaign import CampaignSummary, run_campaign
-from eaglemission.missions.campaign_executors import (
+from eaglemission.lab.campaign.campaign import CampaignSummary, run_campaign
+from eaglemission.lab.campaign.executors import (
     WALL_TIME_FIELDS,
     CampaignExecutorError,
     LocalExecutor,
@@ -26,7 +26,7 @@ from eaglemission.missions.campaign_executors import (
     make_executor,
     stage_project,
 )
-from eaglemission.missions.campaign_resume import MANIFEST, CampaignResumeError, result_path
+from eaglemission.lab.campaign.resume import MANIFEST, CampaignResumeError, result_path
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile, load_config
@@ -152,7 +152,7 @@ def test_the_staged_project_imports_with_its_plugins(tmp_path: Path) -> None:
     """What a cluster's worker gets as its working_dir: the package with its plugin folders and
     entry points, imported from there (not from this checkout)."""
     staged = stage_project(tmp_path / "project")
-    probe = ("import importlib.metadata as m, eaglemission.missions.campaign as c, "
+    probe = ("import importlib.metadata as m, eaglemission.lab.campaign.campaign as c, "
              "eaglemission.registry as r; d = next(iter(m.distributions(name='eaglemission')));"
              "print(c.__file__, d.locate_file(''), r.get('detectors', 'mss').__module__)")
     p = subprocess.run([sys.executable, "-c", probe], cwd=staged, capture_output=True,
@@ -258,13 +258,13 @@ def test_a_stopped_emulator_campaign_stops_its_emulators(small_yaml: Path,
 def test_only_faults_flies_the_runs_of_those_kinds_from_the_same_draws(small_yaml: Path) -> None:
     """``fault_campaign.py --only-faults``: after a change to one fault's path, the runs it can
     alter are flown again, drawn as in the whole campaign."""
-    from eaglemission.missions.campaign_faults import with_drawn_fault
+    from eaglemission.lab.campaign.faults import with_drawn_fault
 
     kinds = ["camera_drop", "slow_frame"]
     base = load_config(str(small_yaml), check_plugins=False)
     drawn = {i: with_drawn_fault(base, i, kinds, SEED).faults for i in range(4)}
     expected = sorted(i for i, f in drawn.items() if f is not None
-                      and f.inject[0].kind == "slow_frame")
+                      and f["inject"][0]["kind"] == "slow_frame")
     summary = run_campaign(str(small_yaml), runs=4, seed=SEED, workers=1, faults=kinds,
                            only_faults={"slow_frame"})
     assert [r["run"] for r in summary.runs] == expected and len(expected) == 2

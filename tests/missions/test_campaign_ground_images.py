@@ -6,7 +6,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.missions.campaign import randomise
+from eaglemission.lab.campaign.campaign import randomise
 
 from eaglemission.cli import main
 from eaglemission.config import load_config

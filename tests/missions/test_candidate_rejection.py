@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from eaglemission.lab.campaign.sim import run_simulation
 from eaglemission.missions.approach import (
     S,
     Snapshot,
@@ -17,7 +18,6 @@ from eaglemission.missions.approach import (
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.guidance import Guidance, GuidanceConfig
 from eaglemission.missions.log import MissionLog
-from eaglemission.missions.sim import run_simulation
 from eaglemission.missions.tracking import TargetTracking, heading_consistency
 from mission_helpers import variant
 

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from eaglemission.drivers.worlds.synthetic import world_config
+from eaglemission.lab.campaign.sim import effective_vehicle_config, run_simulation
+from eaglemission.lab.world.synthetic import world_config
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import effective_vehicle_config, run_simulation
 from fault_harness import Fault, fly_with_faults
 from mission_helpers import variant
 
@@ -141,7 +141,7 @@ def test_geofence_at_the_target(fast_config: MissionFile, tmp_path: Path) -> Non
 
 def test_record_writes_both_streams_and_telemetry(fast_config: MissionFile,
                                                   tmp_path: Path) -> None:
-    from eaglemission.recording import read_camera_model, read_telemetry
+    from eaglemission.recording.folder import read_camera_model, read_telemetry
 
     rec = tmp_path / "rec"
     out = fly_with_faults(fast_config, [Fault("battery_low", "TAKEOFF", 1.5, 0.0, 0.1)],

@@ -51,7 +51,7 @@ HALF_RES = {"resolution_px": [640, 480], "pixel_size_um": 7.5}
 
 
 def test_replay_config_reads_its_frames_from_the_recording(fast_config, tmp_path: Path) -> None:
-    from eaglemission.missions.sim import run_simulation
+    from eaglemission.lab.campaign.sim import run_simulation
 
     cams = {cid: {**cam, **HALF_RES} for cid, cam in fast_config.model_dump()["cameras"].items()}
     cfg = variant(fast_config, cameras=cams, detector={"type": "mss", "params": {"downscale": 1}})

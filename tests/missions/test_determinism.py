@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 from deployment_helpers import cli, log_records, run_env
-from eaglemission.missions.campaign import randomise
+from eaglemission.lab.campaign.campaign import randomise
+from eaglemission.lab.campaign.sim import run_simulation
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import run_simulation
 
 WALL_FIELDS = {"wall_time", "perception_ms", "latency_ms", "latency_p90_ms", "wall_s"}
 """Fields that measure host time (how long the computer took), not the flight."""

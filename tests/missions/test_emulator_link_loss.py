@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from eaglemission.missions.campaign_emulator import fly_on_emulator
+from eaglemission.lab.campaign.emulator import fly_on_emulator
 from eaglemission.missions.log import read_log
 from fault_harness import Fault, with_faults
 

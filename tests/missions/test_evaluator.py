@@ -3,8 +3,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from eaglemission.lab.evaluation.evaluator import envelope_violations, evaluate
 from eaglemission.missions.approach_config import ApproachConfig
-from eaglemission.missions.evaluator import envelope_violations, evaluate
 from eaglemission.missions.guidance import grasp_position
 
 from eaglemission.config import load_config

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 import yaml
-from eaglemission.missions.campaign_faults import grasped_elsewhere, noticed
+from eaglemission.lab.campaign.faults import grasped_elsewhere, noticed
+from eaglemission.lab.faults.outcomes import expected_action
 from eaglemission.missions.log import read_log
 from fault_harness import Fault, fly_with_faults
 
 from eaglemission.config import MissionFile, TargetConfig
-from eaglemission.faults_outcomes import expected_action
 
 TOLERABLE = {
     "camera_and_world": [Fault("camera_freeze", "COARSE_APPROACH", 0.3, 0.5),
@@ -99,7 +99,7 @@ def test_a_grasp_beyond_the_target_is_another_object() -> None:
 
 def test_the_fault_table_counts_a_grasp_elsewhere_as_not_on_the_target(
         capsys: pytest.CaptureFixture[str]) -> None:
-    from eaglemission.missions.campaign_faults import print_fault_table
+    from eaglemission.lab.campaign.faults import print_fault_table
 
     def run(i: int, failure: str) -> dict[str, object]:
         return {"run": i, "fault": "command_denied", "expected": "complete",

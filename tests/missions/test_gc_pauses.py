@@ -1,4 +1,4 @@
-"""A flight runs on a frozen heap (eaglemission/gc_pauses.py): the objects alive at its start are
+"""A flight runs on a frozen heap (eaglemission/flight/heap.py): the objects alive at its start are
 not walked by the flight's full collections, and are collectable again after it."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import gc
 import weakref
 
 import pytest
-from eaglemission.missions.sim import run_simulation
+from eaglemission.lab.campaign.sim import run_simulation
 
-from eaglemission.gc_pauses import frozen_heap
+from eaglemission.flight.heap import frozen_heap
 
 # the suite freezes the heap between tests (tests/conftest.py): these see the heap as a mission
 # process does, unfrozen

@@ -9,12 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from eaglemission.lab.faults.outcomes import OUTCOMES, expected_action
 from eaglemission.missions.log import read_log
 from fault_harness import Fault, fly_with_faults
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile
-from eaglemission.faults_outcomes import OUTCOMES, expected_action
 
 TOLERABLE = {
     "link_delay": Fault("link_delay", "COARSE_APPROACH", 0.5, 2.0, 0.3),

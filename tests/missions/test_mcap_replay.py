@@ -22,12 +22,12 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import Writer
 from mission_helpers import variant
 
-from eaglemission.assembly import EXIT_REPLAY_DIVERGED, FlightOptions, fly_sync
 from eaglemission.cli import main
 from eaglemission.commands.replay import replay
 from eaglemission.config import MissionFile, load_config
-from eaglemission.mcap_options import RecordOptions
-from eaglemission.mcap_tools import Scan, log_records, scan
+from eaglemission.flight.run import EXIT_REPLAY_DIVERGED, FlightOptions, fly_sync
+from eaglemission.recording.mcap_reader import Scan, log_records, scan
+from eaglemission.recording.options import RecordOptions
 
 SEEDS = (1, 2)
 
@@ -176,13 +176,13 @@ def test_recorded_vehicle_channels_are_json(recordings: dict[int, Path]) -> None
 
 
 def _vehicle(path: Path, topic: str) -> list[dict[str, Any]]:
-    from eaglemission.mcap_tools import messages
+    from eaglemission.recording.mcap_reader import messages
 
     return [json.loads(m.data) for t, m in messages(path) if t == topic]
 
 
 def test_compare_reports_the_earliest_divergence_over_the_channels() -> None:
-    from eaglemission.replay_compare import compare
+    from eaglemission.recording.compare import compare
 
     def sp(t: int, n: float) -> dict[str, Any]:
         return {"kind": "setpoint", "t_ns": t, "state": "CRUISE", "setpoint": [n, 0, -5, 0],

@@ -17,13 +17,13 @@ from deployment_helpers import REPO, log_records
 from eaglemission.missions.camera_pump import FrameCounts
 from mcap.reader import make_reader
 
-from eaglemission.assembly import EXIT_PREFLIGHT, FlightOptions, fly_sync
 from eaglemission.cli import main
 from eaglemission.config import MissionFile, load_config
 from eaglemission.errors import ConfigError
-from eaglemission.mcap_options import planned
-from eaglemission.mcap_tools import messages, parts_of
+from eaglemission.flight.run import EXIT_PREFLIGHT, FlightOptions, fly_sync
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.recording.mcap_reader import messages, parts_of
+from eaglemission.recording.options import planned
 from eaglemission.types import Frame
 
 
@@ -172,7 +172,7 @@ def test_utc_names_never_collide(tmp_path: Path) -> None:
     from datetime import UTC, datetime
 
     from eaglemission.config import RecordingConfig
-    from eaglemission.mcap_options import options_from_config
+    from eaglemission.recording.options import options_from_config
 
     rec = RecordingConfig(path=str(tmp_path / "{utc}.mcap"))
     now = datetime(2026, 12, 1, 10, 15, 2, tzinfo=UTC)

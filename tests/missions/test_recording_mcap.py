@@ -27,15 +27,15 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mission_helpers import variant
 
-from eaglemission import mcap_record
-from eaglemission.assembly import FlightOptions, fly_sync
 from eaglemission.cli import main
 from eaglemission.config import MissionFile, load_config
+from eaglemission.flight.run import FlightOptions, fly_sync
 from eaglemission.interfaces import MissionHooks
-from eaglemission.mcap_options import RecordOptions
-from eaglemission.mcap_record import McapRecorder
-from eaglemission.mcap_tools import Scan, recover, scan
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.recording import mcap_writer as mcap_record
+from eaglemission.recording.mcap_reader import Scan, recover, scan
+from eaglemission.recording.mcap_writer import McapRecorder
+from eaglemission.recording.options import RecordOptions
 
 
 def _short(cfg: MissionFile) -> MissionFile:

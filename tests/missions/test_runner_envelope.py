@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import asyncio
 
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.runner import MissionRunner
 
 from eaglemission.clock import ManualClock
-from eaglemission.safety import SafeVehicle
+from eaglemission.safety.envelope import SafeVehicle
 
 
 def make_runner(vehicle, sitl_config) -> MissionRunner:

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 import yaml
+from eaglemission.lab.campaign.sim import run_simulation
 from eaglemission.missions.approach import S, Snapshot, failsafe
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import read_log
-from eaglemission.missions.sim import run_simulation
 
 from eaglemission.commands.run import emulator_process
 from eaglemission.config import MissionFile, load_config

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 from _camera_helpers import TARGET_NE
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 
 from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount

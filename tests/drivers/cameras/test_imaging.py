@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from _camera_helpers import TARGET_NE, StaticPose
 from eaglemission.drivers.cameras.genicam import to_bgr
-from eaglemission.drivers.cameras.imaging import (
+from eaglemission.lab.cameras.imaging import (
     MIN_BLUR_PX,
     apply_colour_gains,
     bayer_mosaic,
@@ -20,9 +20,9 @@ from eaglemission.drivers.cameras.imaging import (
     motion_blur,
     motion_blur_kernel,
 )
-from eaglemission.drivers.cameras.synthetic import SyntheticCamera, pose_moved_back
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.vehicles.truth_log import TruthLog
+from eaglemission.lab.cameras.synthetic import SyntheticCamera, pose_moved_back
+from eaglemission.lab.vehicles.simulated.truth_log import TruthLog
+from eaglemission.lab.world.render import SyntheticWorld
 
 from eaglemission.clock import ManualClock
 from eaglemission.geometry import (

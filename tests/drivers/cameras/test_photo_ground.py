@@ -8,13 +8,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from eaglemission.drivers.cameras.photo_ground import gradient_energy
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import GroundImageConfig, SyntheticWorldConfig
+from eaglemission.lab.world.ground_images import GroundImageError, ground_image_files
+from eaglemission.lab.world.photo_ground import gradient_energy
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import GroundImageConfig, SyntheticWorldConfig
 from pydantic import ValidationError
 
 from eaglemission.geometry import CameraModel, CameraMount, euler_to_quat
-from eaglemission.ground_images import GroundImageError, ground_image_files
 
 SHARED_PHOTOS = Path(__file__).parents[3] / ".." / "shared" / "data" / "aerial_ground"
 Q_LEVEL = euler_to_quat(0.0, 0.0, 0.0)

@@ -8,12 +8,12 @@ import time
 import cv2
 import numpy as np
 import pytest
-from eaglemission.drivers.cameras.replay import ReplayCamera
+from eaglemission.drivers.cameras.replay.camera import ReplayCamera
 
 from eaglemission import registry
 from eaglemission.errors import CameraError, EndOfStream, FrameError, GrabTimeout
 from eaglemission.geometry import CameraModel
-from eaglemission.recording import (
+from eaglemission.recording.folder import (
     RunRecorder,
     read_camera_model,
     read_telemetry,
@@ -195,8 +195,8 @@ def test_recorder_never_lists_a_half_written_frame(tmp_path):
 
 
 def test_recorder_interface_used_by_the_mission_runner(tmp_path):
-    """missions/sim.py uses replay.Recorder(root, models=...), write_frame, write_telemetry."""
-    from eaglemission.drivers.cameras.replay import Recorder
+    """lab/campaign/sim.py uses replay.Recorder(root, models=...), write_frame, write_telemetry."""
+    from eaglemission.drivers.cameras.replay.camera import Recorder
 
     models = {"wide": _model(32, 24, "wide"), "narrow": _model(32, 24, "narrow")}
     rec = Recorder(tmp_path / "run", models=models)

@@ -7,10 +7,10 @@ import asyncio
 import numpy as np
 import pytest
 from _camera_helpers import StaticPose, looking_at_target
-from eaglemission.drivers.cameras.rig import CameraRig
-from eaglemission.drivers.cameras.synthetic import SyntheticCamera, make_synthetic_rig
-from eaglemission.drivers.cameras.world import SyntheticWorld
-from eaglemission.drivers.worlds.synthetic import world_config
+from eaglemission.lab.cameras.rig import CameraRig
+from eaglemission.lab.cameras.synthetic import SyntheticCamera, make_synthetic_rig
+from eaglemission.lab.world.render import SyntheticWorld
+from eaglemission.lab.world.synthetic import world_config
 
 from eaglemission import registry
 from eaglemission.clock import ManualClock

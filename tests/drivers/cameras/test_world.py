@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 from _camera_helpers import StaticPose, looking_at_target
-from eaglemission.drivers.cameras.synthetic import SyntheticCamera
-from eaglemission.drivers.cameras.world import SyntheticWorld, clip_polygon, polygon_area
-from eaglemission.drivers.worlds.synthetic import DistractorConfig, SyntheticWorldConfig
+from eaglemission.lab.cameras.synthetic import SyntheticCamera
+from eaglemission.lab.world.render import SyntheticWorld, clip_polygon, polygon_area
+from eaglemission.lab.world.synthetic import DistractorConfig, SyntheticWorldConfig
 
 from eaglemission.clock import ManualClock
 from eaglemission.geometry import angle_between_rotations_deg, euler_to_quat
@@ -211,8 +211,7 @@ def test_clip_polygon_keeps_the_half_plane():
 
 
 def test_texture_disk_cache_round_trip_and_pruning(tmp_path, monkeypatch):
-    from eaglemission.drivers.cameras import textures
-
+    from eaglemission.lab.world import textures
     monkeypatch.setenv("EAGLEMISSION_TEXTURE_CACHE", str(tmp_path))
     calls = []
 

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import cv2
-import eaglemission.drivers.cameras.world as world_mod
-import eaglemission.drivers.cameras.world_ground as ground_mod
+import eaglemission.lab.world.ground as ground_mod
+import eaglemission.lab.world.render as world_mod
 import numpy as np
 from _camera_helpers import looking_at_target
-from eaglemission.drivers.cameras.world import SKY_HORIZON_BGR, SKY_ZENITH_BGR, SyntheticWorld
+from eaglemission.lab.world.render import SKY_HORIZON_BGR, SKY_ZENITH_BGR, SyntheticWorld
 
 from eaglemission.geometry import euler_to_quat, quat_to_R
 

@@ -11,8 +11,8 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
-from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
-from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
+from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle
+from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
 
 
 class ScaledClock:

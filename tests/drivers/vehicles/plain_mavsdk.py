@@ -15,8 +15,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
 from eaglemission.drivers.vehicles.px4 import decode_custom_mode
+from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
 
 from eaglemission.types import FlightMode
 

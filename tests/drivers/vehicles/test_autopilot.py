@@ -9,14 +9,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import pytest
-from eaglemission.drivers.vehicles.autopilot import (
+from eaglemission.lab.vehicles.autopilot.model import (
     Autopilot,
     AutopilotParams,
     FailsafeAction,
     LandedState,
     MissionItem,
 )
-from eaglemission.drivers.vehicles.dynamics import DynamicsParams, MulticopterDynamics
+from eaglemission.lab.vehicles.multicopter.dynamics import DynamicsParams, MulticopterDynamics
 
 from eaglemission.clock import ManualClock
 from eaglemission.types import FlightMode, Setpoint

@@ -19,8 +19,8 @@ import time
 from collections.abc import AsyncIterator
 
 import pytest
-from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
-from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle
+from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle
+from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
 from udp_relay import UdpRelay
 
 from eaglemission.errors import ModeChangedExternally

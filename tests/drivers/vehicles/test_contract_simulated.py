@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 
 import pytest
-from eaglemission.drivers.vehicles.dynamics import DynamicsParams
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.vehicles.multicopter.dynamics import DynamicsParams
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 
 from eaglemission.clock import ManualClock
 from eaglemission.config import SafetyConfig
@@ -54,7 +54,7 @@ def make_backend(variant: str, seed: int = 7) -> SimulatedBackend:
     sim = SimulatedVehicle(SimulatedVehicle.Config(dynamics=dyn), clock=clock, simulation=simulation)
     vehicle: Vehicle = sim
     if variant == "safe":
-        from eaglemission.safety import SafeVehicle
+        from eaglemission.safety.envelope import SafeVehicle
 
         vehicle = SafeVehicle(sim, SafetyConfig(), clock=clock)
     return SimulatedBackend(f"simulated-{variant}", sim, clock, vehicle)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from eaglemission.drivers.vehicles.dynamics import (
+from eaglemission.lab.vehicles.multicopter.dynamics import (
     GRAVITY_MPS2,
     DynamicsParams,
     EstimateModel,

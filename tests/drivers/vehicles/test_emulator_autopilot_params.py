@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import pytest
 from eaglemission.drivers.vehicles import px4
-from eaglemission.drivers.vehicles.autopilot_params import AutopilotParams, rtl_altitude_m
-from eaglemission.drivers.vehicles.mavlink_emulator import Px4Emulator
+from eaglemission.lab.vehicles.autopilot.params import AutopilotParams, rtl_altitude_m
+from eaglemission.lab.vehicles.emulator.emulator import Px4Emulator
 from emulator_support import flying_pair
 
-from eaglemission.autopilot_guard import AutopilotGuard
 from eaglemission.config import SafetyConfig
+from eaglemission.safety.autopilot_guard import AutopilotGuard
 
 
 async def test_defaults_are_px4_v1_16_multicopter_and_the_version_is_reported() -> None:

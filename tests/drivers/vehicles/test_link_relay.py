@@ -8,12 +8,15 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from eaglemission.drivers.vehicles.link_relay import LinkFaultRelay, first_msgid, parse_udpin
-from eaglemission.drivers.vehicles.mavlink_dialect import mavlink
-from eaglemission.drivers.vehicles.mavsdk_vehicle import MavsdkVehicle, MavsdkVehicleConfig
+from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle, MavsdkVehicleConfig
+from eaglemission.lab.faults.config import FaultsConfig
+from eaglemission.lab.faults.injection import FaultInjection, injector_of
+from eaglemission.lab.faults.link_relay import LinkFaultRelay, first_msgid, parse_udpin
+from eaglemission.lab.vehicles.emulator.dialect import mavlink
 
+from eaglemission.config import load_config
+from eaglemission.config.models import PluginSection
 from eaglemission.errors import ConfigError
-from eaglemission.fault_injection import injector_of
 
 pytestmark = pytest.mark.machine  # UDP sockets in real time (tests/conftest.py)
 
@@ -183,13 +186,31 @@ def test_bad_arguments_and_urls_are_refused() -> None:
     relay = LinkFaultRelay("udpin://127.0.0.1:1")
     with pytest.raises(RuntimeError, match="not running"):
         relay.inject_link_loss(1.0)
-    with pytest.raises(ConfigError, match="needs udpin"):
-        MavsdkVehicle(MavsdkVehicleConfig(url="serial:///dev/ttyACM0:921600", fault_relay=True))
+    cfg = load_config(check_plugins=False)
+    serial = cfg.model_copy(update={"vehicle": PluginSection(
+        type="mavsdk", params={"url": "serial:///dev/ttyACM0:921600"})})
+    section = FaultInjection(FaultsConfig.model_validate(
+        {"inject": [{"kind": "link_loss", "at_s": 1.0}]}))
+    with pytest.raises(ConfigError, match="needs vehicle.params.url = udpin://HOST:PORT"):
+        section.prepare(serial)
 
 
-def test_the_mavsdk_vehicle_injects_link_faults_only_through_its_relay() -> None:
-    plain = MavsdkVehicle(MavsdkVehicleConfig())
-    relayed = MavsdkVehicle(MavsdkVehicleConfig(fault_relay=True))
-    assert injector_of(plain, "link_delay") is None
-    assert injector_of(relayed, "link_delay") == relayed.link_faults.inject_link_delay
-    assert injector_of(relayed, "gps_loss") is None  # the autopilot's world: not the link
+def test_the_faults_section_puts_a_relay_only_before_a_mavsdk_vehicle_with_link_kinds() -> None:
+    cfg = load_config(check_plugins=False)
+    mavsdk = cfg.model_copy(update={"vehicle": PluginSection(
+        type="mavsdk", params={"url": "udpin://127.0.0.1:0"})})
+    link = FaultInjection(FaultsConfig.model_validate(
+        {"inject": [{"kind": "link_delay", "at_s": 1.0, "size": 0.2}]}))
+    gps = FaultInjection(FaultsConfig.model_validate({"inject": [{"kind": "gps_loss", "at_s": 1}]}))
+    try:
+        assert gps.prepare(mavsdk) is mavsdk and gps.relay is None
+        assert link.prepare(cfg) is cfg and link.relay is None  # the simulated vehicle's own
+        flown = link.prepare(mavsdk)
+        assert link.relay is not None
+        assert flown.vehicle.params["url"] == link.relay.client_url != "udpin://127.0.0.1:0"
+        plain = MavsdkVehicle(MavsdkVehicleConfig())
+        assert injector_of(plain, "link_delay") is None
+        assert injector_of(plain, "link_delay", link.relay) == link.relay.inject_link_delay
+        assert injector_of(plain, "gps_loss", link.relay) is None  # the autopilot's world
+    finally:
+        link.close()

@@ -25,8 +25,7 @@ from typing import Any
 
 import pytest
 from eaglemission.drivers.vehicles import px4
-from eaglemission.drivers.vehicles.emulator_messages import Streams
-from eaglemission.drivers.vehicles.mavlink_emulator import (
+from eaglemission.lab.vehicles.emulator.emulator import (
     PX4_ONBOARD_RATES_HZ,
     EmulatorConfig,
     Px4Emulator,
@@ -34,6 +33,7 @@ from eaglemission.drivers.vehicles.mavlink_emulator import (
     parse_link,
     stream_rates_hz,
 )
+from eaglemission.lab.vehicles.emulator.messages import Streams
 
 from eaglemission.errors import ConfigError
 from eaglemission.types import FlightMode, Setpoint, Waypoint

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from eaglemission.drivers.vehicles.emulator_messages import Streams
-from eaglemission.drivers.vehicles.mavsdk_support import MavsdkVehicleConfig
-from eaglemission.drivers.vehicles.mavsdk_telemetry import MavsdkTelemetry
+from eaglemission.drivers.vehicles.mavsdk.support import MavsdkVehicleConfig
+from eaglemission.drivers.vehicles.mavsdk.telemetry import MavsdkTelemetry
+from eaglemission.lab.vehicles.emulator.messages import Streams
 
 MS = 1_000_000
 

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from eaglemission.drivers.vehicles.mavlink_emulator import mavlink as M
-from eaglemission.drivers.vehicles.mavsdk_vehicle import (
+from eaglemission.drivers.vehicles.mavsdk.vehicle import (
     MavsdkVehicle,
     parse_url,
     step_towards,
 )
-from eaglemission.drivers.vehicles.watchdog import OffboardWatchdog
+from eaglemission.drivers.vehicles.mavsdk.watchdog import OffboardWatchdog
+from eaglemission.lab.vehicles.emulator.emulator import mavlink as M
 
 from eaglemission import registry
 from eaglemission.errors import TimeoutError_, VehicleError

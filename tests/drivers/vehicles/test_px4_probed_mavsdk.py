@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 import pytest
 from eaglemission.drivers.vehicles import px4
-from eaglemission.drivers.vehicles.mavlink_dialect import M
+from eaglemission.lab.vehicles.emulator.dialect import M
 
 from eaglemission.types import FlightMode
 

@@ -30,7 +30,7 @@ from typing import Any
 
 import pytest
 from eaglemission.drivers.vehicles import px4
-from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator, mavlink
+from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator, mavlink
 
 from eaglemission.types import FlightMode
 

@@ -16,8 +16,8 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from eaglemission.drivers.vehicles.emulator_config import PX4_SIH_RANGEFINDER, distance_sensor_cm
-from eaglemission.drivers.vehicles.mavsdk_support import downward_range_m
+from eaglemission.drivers.vehicles.mavsdk.support import downward_range_m
+from eaglemission.lab.vehicles.emulator.config import PX4_SIH_RANGEFINDER, distance_sensor_cm
 
 try:  # tests/ is not a package
     from emulator_support import scenario

@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from eaglemission.drivers.vehicles.mavlink_emulator import EmulatorConfig, Px4Emulator
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle, SimulatedVehicleConfig
+from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle, SimulatedVehicleConfig
 
 try:  # tests/ is not a package
     from emulator_support import scenario

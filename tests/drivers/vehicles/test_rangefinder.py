@@ -12,16 +12,16 @@ from typing import Any
 
 import numpy as np
 import pytest
-from eaglemission.drivers.vehicles.dynamics import RangefinderParams, rangefinder_reading_m
-from eaglemission.drivers.vehicles.mavlink_emulator import (
+from eaglemission.drivers.vehicles.mavsdk.vehicle import downward_range_m
+from eaglemission.drivers.vehicles.wait import wait_until
+from eaglemission.lab.vehicles.emulator.emulator import (
     DISTANCE_NO_RETURN_CM,
     PX4_ONBOARD_RATES_HZ,
     distance_sensor_cm,
     mavlink,
 )
-from eaglemission.drivers.vehicles.mavsdk_vehicle import downward_range_m
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle, SimulatedVehicleConfig
-from eaglemission.drivers.vehicles.wait import wait_until
+from eaglemission.lab.vehicles.multicopter.dynamics import RangefinderParams, rangefinder_reading_m
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle, SimulatedVehicleConfig
 from mavsdk.plugins.telemetry import DistanceSensor, EulerAngle
 
 from eaglemission.clock import ManualClock

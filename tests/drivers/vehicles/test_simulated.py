@@ -8,10 +8,10 @@ import contextlib
 import math
 
 import pytest
-from eaglemission.drivers.vehicles.dynamics import DynamicsParams
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle, SimulatedVehicleConfig
 from eaglemission.drivers.vehicles.wait import wait_until
-from eaglemission.drivers.worlds.synthetic import SyntheticWorldConfig
+from eaglemission.lab.vehicles.multicopter.dynamics import DynamicsParams
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle, SimulatedVehicleConfig
+from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 from pydantic import ValidationError
 
 from eaglemission import registry
@@ -499,7 +499,7 @@ RTL_ALT_M = 10.0
 def make_safe(**cfg: object) -> tuple[SimulatedVehicle, object, ManualClock]:
     """A simulated vehicle wrapped in the safety envelope, as the mission runner flies it."""
     from eaglemission.config import SafetyConfig
-    from eaglemission.safety import SafeVehicle
+    from eaglemission.safety.envelope import SafeVehicle
 
     cfg.setdefault("rtl_return_altitude_m", RTL_ALT_M)
     sim, clock = make(**cfg)

@@ -1,12 +1,12 @@
-"""The simulated vehicle's ``link_delay`` (drivers/vehicles/simulated_link.py) on what the mission
+"""The simulated vehicle's ``link_delay`` (lab/vehicles/simulated/link.py) on what the mission
 sends and looks up: streamed setpoints reach the dynamics ``delay_s`` late, in order, and
 ``state_at`` (the frames' poses) only sees the samples the ground has received."""
 
 from __future__ import annotations
 
 import pytest
-from eaglemission.drivers.vehicles.simulated import SimulatedVehicle
 from eaglemission.drivers.vehicles.wait import wait_until
+from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
 
 from eaglemission.clock import ManualClock
 from eaglemission.types import FlightMode, Setpoint, VehicleState

@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from eaglemission.drivers.worlds.synthetic import SyntheticWorld, SyntheticWorldConfig
+from eaglemission.lab.world.synthetic import SyntheticWorld, SyntheticWorldConfig
 
 from eaglemission import registry
-from eaglemission.assembly import build_world
 from eaglemission.config import load_config
 from eaglemission.errors import ConfigError
+from eaglemission.flight.assembly import build_world
 from eaglemission.interfaces import World
 
 
@@ -57,7 +57,7 @@ KEYS_BEFORE_IMAGING = {
 
 def _campaign_worlds(seed: int, runs: int, **kw: object) -> list[dict]:
     """The world params of runs 0..runs-1 of ``campaign --seed SEED``, drawn as it draws."""
-    from eaglemission.missions.campaign import randomise
+    from eaglemission.lab.campaign.campaign import randomise
 
     base = load_config()
     rng = np.random.RandomState(seed)
@@ -96,7 +96,7 @@ def test_imaging_effects_are_drawn_from_the_world_seed() -> None:
     """Motion blur and BayerRG in every run, white balance within its ranges, JPEG 60-95 in
     about half of the runs; the same seed draws the same effects; --no-imaging-effects keeps
     the mission file's (all off)."""
-    from eaglemission.drivers.worlds.synthetic import (
+    from eaglemission.lab.world.synthetic import (
         WB_TEMPERATURE_LOG_GAIN,
         WB_TINT_LOG_GAIN,
         imaging_draws,
