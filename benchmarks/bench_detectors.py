@@ -35,7 +35,7 @@ from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.detectors.cli_params import parse_detector_specs  # noqa: E402
+from eaglemission.detectors.cli_params import build_spec, parse_detector_specs  # noqa: E402
 
 from eaglemission import registry  # noqa: E402
 from eaglemission.errors import EagleMissionError  # noqa: E402
@@ -110,17 +110,18 @@ def target_image(spec: str | None) -> np.ndarray | None:
 
 def load_detectors(spec_text: str | None, params: list[str],
                    appearance: np.ndarray | None = None) -> list[tuple[str, object]]:
-    ctx = {} if appearance is None else {"appearance": appearance}
+    """The detectors of ``--detectors`` (labels ending in ``+appearance`` followed by the
+    appearance prior with ``appearance`` as the example image), default every loadable one."""
     if spec_text is None:
         names = sorted(registry.available("detectors"))
         out = []
         for name in names:
             try:
-                out.append((name, registry.load("detectors", name, **ctx)))
+                out.append((name, registry.load("detectors", name)))
             except EagleMissionError as exc:
                 print(f"# skipped {name}: {exc}", file=sys.stderr)
         return out
-    return [(s.label, registry.load("detectors", s.name, s.params, **ctx))
+    return [(s.label, build_spec(s, appearance))
             for s in parse_detector_specs(spec_text, params)]
 
 
@@ -282,8 +283,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=1, help="passes over the frames (speed)")
     p.add_argument("--no-target", action="store_true", help="false detections on empty ground")
     p.add_argument("--target-image", default=None, metavar="PATH|first-frame",
-                   help="give every detector this example image of the target "
-                        "(context appearance); first-frame: the first DAVIS 'dog' mask's box")
+                   help="the example image of the target for the detectors labelled "
+                        "NAME+appearance (the appearance prior after the detector); first-frame: "
+                        "the first DAVIS 'dog' mask's box")
     p.add_argument("--ground-images", default=None, metavar="DIR",
                    help="--no-target: pan and hover over the real photos DIR/NAME.jpg|png "
                         "instead of the synthetic world's textures")

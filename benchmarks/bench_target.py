@@ -25,7 +25,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: E402
 from eaglemission.estimators.bearing import BearingConfig, BearingEstimator  # noqa: E402
 from eaglemission.estimators.correspondence import order_corners  # noqa: E402
 from eaglemission.estimators.pixel_offset import PixelOffsetEstimator  # noqa: E402
@@ -37,6 +36,7 @@ from eaglemission.config import load_config  # noqa: E402
 from eaglemission.geometry import euler_to_quat  # noqa: E402
 from eaglemission.geometry.fov import target_in_narrow_view  # noqa: E402
 from eaglemission.interfaces.estimator import CameraView  # noqa: E402
+from eaglemission.perception.regions import RegionsConfig, find_regions  # noqa: E402
 from eaglemission.types import Detection, VehicleState  # noqa: E402
 
 

@@ -1,9 +1,8 @@
 """Leave-sequences-out tuning of DTDMI on real footage; prints out-of-fold figures only.
 
     python benchmarks/tune_real.py uav                     # aerial grid on ../shared's UAV sequences
-    python benchmarks/tune_real.py uav --target-image      # + the first-frame crop as appearance
-                                                           # (grid aerial_appearance_exposure: the
-                                                           # preset with an image has no dynamic part)
+    python benchmarks/tune_real.py uav --target-image      # + the appearance prior with the
+                                                           # first-frame crop (grid appearance)
     python benchmarks/tune_real.py davis                   # default-preset grid on DAVIS 2016
     python benchmarks/tune_real.py uav --grid my.json      # a JSON list of {"params": ..., "regions": ...}
 
@@ -20,13 +19,14 @@ Protocol (docs/detectors.md, "Tuning on real footage"):
   pooled per-image-mean curves (ties: AUC).
 - **Search** on cached maps: every grid point's maps are computed once at the processing
   resolution (``downscale``, the mission's 2 by default: 640x360 for the UAV frames), every frame
-  run (the detector is stateful) and every ``--score-step``-th frame scored; the region settings
-  of a grid point are applied to the cached map. **Report**: the chosen configurations are then
+  run (the detector is stateful) and every ``--score-step``-th frame scored; a grid point's
+  variants (its region settings; with the target image, its appearance sections: the
+  appearance prior's own state per variant) are applied to the cached maps. **Report**: the chosen configurations are then
   run through the whole detector (``registry.load(...).detect`` on every full-resolution frame,
   every frame scored, exactly as ``eaglemission bench``); only these figures are printed.
 - **Target image** (``--target-image``, UAV): each sequence's first-frame box is cropped as the
-  detector's ``appearance``; the first 10 % of the frames are not scored, for the runs without
-  the image either (same frames).
+  example image of the appearance prior after the detector; the first 10 % of the frames are
+  not scored, for the runs without the image either (same frames).
 - The footage has no metric scale: no target prior (size) is used; references (SR + the same
   regions, the mission's detector, the centre prior) are scored on the same frames.
 
@@ -54,9 +54,7 @@ from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.detectors.dtdmi.detector import appearance_rerank  # noqa: E402
 from eaglemission.detectors.inputs import frame_time_ns  # noqa: E402
-from eaglemission.detectors.regions import RegionsConfig, find_regions  # noqa: E402
 from eaglemission.lab.bench.boxes import (  # noqa: E402
     BoxScores,
     box_from_mask,
@@ -72,13 +70,15 @@ from eaglemission.lab.bench.data import (  # noqa: E402
 from eaglemission.lab.bench.metrics import CurveAccumulator, normalize_map  # noqa: E402
 
 from eaglemission import registry  # noqa: E402
+from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance  # noqa: E402
+from eaglemission.perception.regions import RegionsConfig, find_regions  # noqa: E402
 from eaglemission.types import DetectionResult, Frame  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
 DATA = {"uav": SHARED / "uav_tracking", "davis": SHARED / "video_saliency" / "DAVIS2016"}
 FPS = {"uav": 10.0, "davis": 24.0}  # UAV123@10fps; the UAVDT/DTB70 clips are treated alike
-VERSION = 12  # bump when the detector code changes what a configuration computes
+VERSION = 13  # bump when the detector code changes what a configuration computes
 
 
 # ---------------------------------------------------------------------------------------------
@@ -117,53 +117,35 @@ def grid_aerial_round1() -> list[dict[str, Any]]:
     return out
 
 
-def grid_aerial_appearance() -> list[dict[str, Any]]:
-    """With the target image (round 2): unpooled colour bins (the model, its back-projection
-    and the re-ranking histograms), following the previous best detection (weight 0: off; the
-    Gaussian's sigma fixed at 0.1 of the diagonal), the re-ranking exponent; regions: peak
-    fraction. The back-projection's prior and the saliency's weight stay at the config's
-    defaults (0.1, 0.25: round 1's choice in four folds of five). The regions' floor is fixed
-    beforehand at the preset's ``appearance_floor`` (30: the lowest of 20, 30, 40, ... that
-    keeps the target-free garfield_park photos under 0.05 detections per frame;
-    docs/detectors.md, "On real ground photos")."""
+def grid_appearance() -> list[dict[str, Any]]:
+    """With the target image: DTDMI's ``aerial`` preset without its dynamic part (a target static
+    on the ground moves as the ground does), followed by the appearance prior
+    (:mod:`eaglemission.perception.prior`). Searched: the example's exposure span, the weight of
+    the detector's map, following, the regions' peak fraction. Fixed beforehand: unpooled colour
+    bins, re-ranking exponent 8 over 12 candidates, the regions' floor (``--floor``: the lowest
+    that keeps target-free real ground photos under 0.05 false detections per frame,
+    benchmarks/bench_detectors.py --no-target)."""
+    return [{"params": {"preset": "aerial", "use_dynamic": False},
+             "appearance": appearance_variants()}]
+
+
+def grid_appearance_sr() -> list[dict[str, Any]]:
+    """:func:`grid_appearance` after OpenCV's spectral residual instead of DTDMI."""
+    return [{"detector": "sr", "params": {}, "appearance": appearance_variants()}]
+
+
+FLOOR = 40
+"""The appearance prior's regions floor on 0..255 (``--floor``)."""
+
+
+def appearance_variants() -> list[dict[str, Any]]:
     out = []
-    for pool, track, gamma in itertools.product((True, False), (0.0, 0.3), (4.0, 8.0)):
-        params = {"preset": "aerial", "appearance_pool": pool,
-                  "appearance_track_weight": track, "appearance_rank_exponent": gamma,
-                  "use_dynamic": True}  # as measured (since 6 Dec 2026 the preset's default
-        # with an image is without it: grid aerial_appearance_static)
-        regions = [{"peak_fraction": pf, "adaptive_floor": 30} for pf in (0.7, 0.8)]
-        out.append({"params": params, "regions": regions})
-    return out
-
-
-def grid_aerial_appearance_static() -> list[dict[str, Any]]:
-    """:func:`grid_aerial_appearance` without the dynamic part (what the ``aerial`` preset runs
-    with an example image since 6 Dec 2026): 77.9 % out of fold, with the example's colours as
-    they are (``appearance_exposure_span`` 1)."""
-    return [{**g, "params": {**g["params"], "use_dynamic": False,
-                             "appearance_exposure_span": 1.0}}
-            for g in grid_aerial_appearance()]
-
-
-def grid_aerial_appearance_exposure() -> list[dict[str, Any]]:
-    """:func:`grid_aerial_appearance_static` with the colour model's exposure span 1 (the
-    example's colours as they are), 1.2 or 1.5 (gains from 1/span to span)."""
-    return [{**g, "params": {**g["params"], "appearance_exposure_span": span}}
-            for span in (1.0, 1.2, 1.5) for g in grid_aerial_appearance_static()]
-
-
-def grid_aerial_appearance_round1() -> list[dict[str, Any]]:
-    """Round 1 with the target image (51.2 % out of fold): the back-projection's prior, the
-    saliency's weight in the map and the exponent of the region re-ranking by colour histogram
-    (0: off)."""
-    out = []
-    for prior, w, gamma in itertools.product((0.03, 0.1), (0.1, 0.25), (0.0, 4.0, 8.0)):
-        params = {"preset": "aerial", "appearance_prior": prior, "appearance_pool": True,
-                  "appearance_saliency_weight": w, "appearance_rank_exponent": gamma,
-                  "use_dynamic": True}
-        regions = [{"peak_fraction": pf} for pf in (0.6, 0.7, 0.8)]
-        out.append({"params": params, "regions": regions})
+    for span, w, follow, pf in itertools.product((1.0, 1.5), (0.25, 0.75, 2.0), (0.0, 0.3),
+                                                 (0.7, 0.8)):
+        out.append({"example": {"exposure_span": span},
+                    "prior": {"saliency_weight": w, "follow_weight": follow,
+                              "regions": {"threshold": "adaptive", "adaptive_floor": FLOOR,
+                                          "peak_fraction": pf, "max_aspect": 5.0}}})
     return out
 
 
@@ -195,11 +177,8 @@ def grid_default_round1() -> list[dict[str, Any]]:
 
 
 GRIDS = {"aerial": grid_aerial, "aerial_round1": grid_aerial_round1,
-         "aerial_appearance": grid_aerial_appearance,
-         "aerial_appearance_static": grid_aerial_appearance_static,
-         "aerial_appearance_exposure": grid_aerial_appearance_exposure,
-         "aerial_appearance_round1": grid_aerial_appearance_round1, "default": grid_default,
-         "default_round1": grid_default_round1}
+         "appearance": grid_appearance, "appearance_sr": grid_appearance_sr,
+         "default": grid_default, "default_round1": grid_default_round1}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -315,48 +294,63 @@ def resolved_config(name: str, params: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def make_detector(name: str, params: dict[str, Any], seq: Seq, use_image: bool) -> Any:
-    ctx = {"appearance": seq.crop} if use_image and seq.crop is not None else {}
-    return registry.load("detectors", name, params, **ctx)
+def make_detector(name: str, params: dict[str, Any], seq: Seq, use_image: bool,
+                  appearance: dict[str, Any] | None = None) -> Any:
+    """The detector, followed by the appearance prior (``appearance``: the ``appearance``
+    section) with the sequence's first-frame crop when ``use_image``."""
+    det = registry.load("detectors", name, params)
+    if appearance is None or not use_image or seq.crop is None:
+        return det
+    cfg = AppearanceConfig.model_validate(appearance)
+    return TargetAppearance(image=seq.crop, example=cfg.example).with_prior(det, cfg.prior)
+
+
+def variants_of(point: dict[str, Any], use_image: bool) -> list[dict[str, Any]]:
+    """A grid point's variants, each computed on the point's cached detector maps: the
+    appearance sections (with the target image), else the detector's region settings."""
+    if use_image and point.get("appearance"):
+        return [{"appearance": a} for a in point["appearance"]]
+    return [{"regions": r} for r in (point.get("regions") or [{}])]
 
 
 def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: bool,
                  step: int, cache: Path) -> list[tuple[dict[str, Any], dict[str, SeqScore]]]:
-    """Per-sequence scores of every region setting of a grid point (maps computed once)."""
+    """Per-sequence scores of every variant of a grid point (the detector's maps computed once
+    per frame at the processing resolution)."""
     name = point.get("detector", "dtdmi")
     params = dict(point["params"])
     ds = int(params.get("downscale", 2))
     params["downscale"] = 1  # the cached maps are made at the processing resolution
-    regions_list = point.get("regions") or [{}]
+    variants = variants_of(point, use_image)
     resolved = resolved_config(name, params)
-    base_regions = resolved["regions"]
-    out_keys = [key_of({"kind": kind, "name": name, "config": resolved, "regions": r,
+    base_regions = resolved.get("regions", {})
+    out_keys = [key_of({"kind": kind, "name": name, "config": resolved, "variant": v,
                         "ds": ds, "image": use_image, "step": step, "v": VERSION})
-                for r in regions_list]
+                for v in variants]
     files = [cache / f"{k}.json" for k in out_keys]
     if all(f.is_file() for f in files):
-        return [(r, {n: SeqScore.from_json(v) for n, v in json.loads(f.read_text()).items()})
-                for r, f in zip(regions_list, files)]
-    results: list[dict[str, SeqScore]] = [{} for _ in regions_list]
-    cfgs = [RegionsConfig(**{**base_regions, **r}) for r in regions_list]
+        return [(v, {n: SeqScore.from_json(x) for n, x in json.loads(f.read_text()).items()})
+                for v, f in zip(variants, files)]
+    results: list[dict[str, SeqScore]] = [{} for _ in variants]
     for seq in seqs:
-        det = make_detector(name, params, seq, use_image)
+        det = make_detector(name, params, seq, False)
         det.reset()
         accs = [SeqScore(BoxScores(), CurveAccumulator() if kind == "davis" else None)
-                for _ in regions_list]
-        model = getattr(getattr(det, "engine", None), "appearance", None)
-        resolved_r = getattr(getattr(det, "engine", None), "r", None)
-        gamma = getattr(resolved_r, "appearance_rank_exponent", 0.0)
-        # with an appearance image the detector follows its previous best detection, so the
-        # regions run on every frame (scored or not), once per region setting
-        tracks: list[tuple[float, float] | None] = [None] * len(cfgs)
+                for _ in variants]
+        # the appearance prior follows its previous best detection: every frame runs through
+        # every variant's own prior (scored or not)
+        priors = [make_detector(name, params, seq, True, v["appearance"])
+                  if "appearance" in v else None for v in variants]
+        regions = [RegionsConfig(**{**base_regions, **v["regions"]}) if "regions" in v else None
+                   for v in variants]
         for i, full in enumerate(seq.frames):
             h, w = full.shape[:2]
             small = cv2.resize(full, (max(8, w // ds), max(8, h // ds)),
                                interpolation=cv2.INTER_AREA) if ds > 1 else full
-            sal = det.saliency(Frame(small, frame_time_ns(i, FPS[kind]), "tune", i))
+            frame = Frame(small, frame_time_ns(i, FPS[kind]), "tune", i)
+            sal = det.saliency(frame)
             scored = i >= seq.first_scored and (i - seq.first_scored) % step == 0
-            if not scored and model is None:
+            if not scored and all(p is None for p in priors):
                 continue
             # scored at the processing resolution: the box scaled down (edges: (e + 0.5) / s - 0.5)
             sx, sy = w / small.shape[1], h / small.shape[0]
@@ -364,43 +358,41 @@ def search_point(kind: str, point: dict[str, Any], seqs: list[Seq], use_image: b
             sal_full = None
             if kind == "davis" and scored:
                 sal_full = cv2.resize(sal, (w, h), interpolation=cv2.INTER_LINEAR)
-            for k, (acc, rc) in enumerate(zip(accs, cfgs)):
-                s_k = sal
-                if model is not None:  # what DTDMIDetector.detect does
-                    s_k = det.follow(sal, tracks[k])
-                if model is not None and gamma > 0:
-                    wide = rc.model_copy(update={"max_detections": max(
-                        rc.max_detections, det.config.appearance_candidates)})
-                    dets, t = find_regions(s_k, wide)
-                    dets = appearance_rerank(dets, small, model, gamma, rc.max_detections,
-                                             exposure=det.engine.exposure)
+            backs: dict[str, tuple[Any, int]] = {}
+            for acc, v, pr, rc in zip(accs, variants, priors, regions):
+                if pr is not None:
+                    ex = key_of(v["appearance"].get("example", {}))
+                    if ex not in backs:
+                        backs[ex] = pr.back_projection(small)
+                    res = pr.combine(frame, small, sal, *backs[ex])
                 else:
-                    dets, t = find_regions(s_k, rc)
-                tracks[k] = dets[0].center_px if dets else None
+                    dets, t = find_regions(sal, rc)
+                    res = DetectionResult(sal, dets, 0, "t", i, t)
                 if not scored:
                     continue
-                acc.box.add(score_frame(DetectionResult(s_k, dets, 0, "t", i, t), box))
+                acc.box.add(score_frame(res, box))
                 if acc.curves is not None and seq.masks[i] is not None:
                     acc.curves.add(normalize_map(sal_full), seq.masks[i])
-        for res, acc in zip(results, accs):
-            res[seq.name] = acc
-    for f, res in zip(files, results):
-        f.write_text(json.dumps({n: v.to_json() for n, v in res.items()}))
-    return list(zip(regions_list, results))
+        for res_k, acc in zip(results, accs):
+            res_k[seq.name] = acc
+    for f, res_k in zip(files, results):
+        f.write_text(json.dumps({n: v.to_json() for n, v in res_k.items()}))
+    return list(zip(variants, results))
 
 
 # ---------------------------------------------------------------------------------------------
 # Report: the whole detector on held-out sequences
 # ---------------------------------------------------------------------------------------------
 def run_full(kind: str, name: str, params: dict[str, Any], seq: Seq, use_image: bool,
-             cache: Path) -> SeqScore:
+             cache: Path, appearance: dict[str, Any] | None = None) -> SeqScore:
     resolved = resolved_config(name, params)
     k = key_of({"full": 1, "kind": kind, "name": name, "config": resolved, "image": use_image,
-                "seq": seq.name, "first": seq.first_scored, "v": VERSION})
+                "appearance": appearance, "seq": seq.name, "first": seq.first_scored,
+                "v": VERSION})
     f = cache / f"full_{k}.json"
     if f.is_file():
         return SeqScore.from_json(json.loads(f.read_text()))
-    det = make_detector(name, params, seq, use_image)
+    det = make_detector(name, params, seq, use_image, appearance)
     det.reset()
     acc = SeqScore(BoxScores(), CurveAccumulator() if kind == "davis" else None)
     for i, img in enumerate(seq.frames):
@@ -414,21 +406,14 @@ def run_full(kind: str, name: str, params: dict[str, Any], seq: Seq, use_image: 
     return acc
 
 
-def merged_params(point: dict[str, Any], regions: dict[str, Any],
-                  use_image: bool = False) -> dict[str, Any]:
-    """A grid point's detector params with one of its region settings. With the target image
-    a DTDMI point's peak fraction and floor are also its ``appearance_peak_fraction`` and
-    ``appearance_floor`` (which the detector applies, with an image, over ``regions``): the
-    search applies them to the cached maps as region settings."""
+def merged(point: dict[str, Any], variant: dict[str, Any]
+           ) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """A grid point's detector params and appearance section with one of its variants."""
     p = dict(point["params"])
     p.setdefault("downscale", 2)
-    if regions:
-        p["regions"] = {**p.get("regions", {}), **regions}
-        if use_image and point.get("detector", "dtdmi") == "dtdmi" and "peak_fraction" in regions:
-            p["appearance_peak_fraction"] = regions["peak_fraction"]
-        if use_image and point.get("detector", "dtdmi") == "dtdmi" and "adaptive_floor" in regions:
-            p["appearance_floor"] = regions["adaptive_floor"]
-    return p
+    if "regions" in variant and variant["regions"]:
+        p["regions"] = {**p.get("regions", {}), **variant["regions"]}
+    return p, variant.get("appearance")
 
 
 def fmt_pct(x: float) -> str:
@@ -469,8 +454,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("dataset", choices=sorted(DATA))
     ap.add_argument("--grid", default=None,
-                    help="built-in grid name (aerial, aerial_appearance, default) or a JSON file "
-                         "with a list of {\"params\": {...}, \"regions\": [{...}, ...]}")
+                    help="built-in grid name (" + ", ".join(GRIDS) + ") or a JSON file with a "
+                         "list of {\"params\": {...}, \"regions\": [{...}, ...]} or "
+                         "{\"params\": {...}, \"appearance\": [{...}, ...]}")
     ap.add_argument("--detector", default="dtdmi")
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--score-step", type=int, default=2, help="search: score every n-th frame")
@@ -482,6 +468,8 @@ def main(argv: list[str] | None = None) -> int:
                          "centre_prior, NAME@JSON, or noimage:NAME@JSON (without the target "
                          "image)")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/eaglemission_tune"))
+    ap.add_argument("--floor", type=int, default=FLOOR,
+                    help="the appearance prior's regions floor on 0..255 (grids appearance*)")
     ap.add_argument("--per-sequence", action="store_true", help="print the per-sequence table")
     a = ap.parse_args(argv)
     cv2.setNumThreads(1)
@@ -496,13 +484,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     kind = a.dataset
     grid_name = a.grid or ("default" if kind == "davis" else
-                           "aerial_appearance_exposure" if a.target_image else "aerial")
+                           "appearance" if a.target_image else "aerial")
     if grid_name in GRIDS:
         grid = GRIDS[grid_name]()
     else:
         grid = json.loads(Path(grid_name).read_text())
     for g in grid:
         g.setdefault("detector", a.detector)
+        for variant in g.get("appearance", []):  # the floor fixed beforehand (--floor)
+            regions = variant.setdefault("prior", {}).setdefault("regions", {})
+            regions["adaptive_floor"] = a.floor
     head = 0.1 if a.target_image else 0.0
     a.cache.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -520,9 +511,9 @@ def main(argv: list[str] | None = None) -> int:
     candidates: list[tuple[dict[str, Any], dict[str, Any], dict[str, SeqScore]]] = []
     for gi, point in enumerate(grid):
         t = time.perf_counter()
-        for regions, per_seq in search_point(kind, point, seqs, a.target_image, a.score_step,
+        for variant, per_seq in search_point(kind, point, seqs, a.target_image, a.score_step,
                                              a.cache):
-            candidates.append((point, regions, per_seq))
+            candidates.append((point, variant, per_seq))
         print(f"#   grid point {gi + 1}/{len(grid)} {json.dumps(point['params'])} "
               f"[{time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
     # -- choose per fold (training = the other folds), and on all sequences
@@ -541,28 +532,33 @@ def main(argv: list[str] | None = None) -> int:
     oof: dict[str, SeqScore] = {}
     fold_of = {n: k for k, f in enumerate(folds) for n in f}
     for n in names:
-        point, regions = chosen[fold_of[n]]
-        oof[n] = run_full(kind, point["detector"],
-                          merged_params(point, regions, a.target_image), by_name[n],
-                          a.target_image, a.cache)
-    rows = {f"**{a.detector} tuned, out of fold**": oof}
+        point, variant = chosen[fold_of[n]]
+        params, appearance = merged(point, variant)
+        oof[n] = run_full(kind, point["detector"], params, by_name[n], a.target_image, a.cache,
+                          appearance)
+    rows = {f"**{grid[0]['detector']} tuned, out of fold**": oof}
     refs: dict[str, dict[str, SeqScore]] = {}
     for ref in split_top_level(a.references):
         per: dict[str, SeqScore] = {}
         for n in names:
-            point, regions = chosen[fold_of[n]]
+            point, variant = chosen[fold_of[n]]
             if ref == "sr":
-                p = {"regions": merged_params(point, regions).get("regions", {})}
+                params, appearance = merged(point, variant)
+                regions = (appearance or {}).get("prior", {}).get("regions") \
+                    or params.get("regions", {})
                 label = "sr + the same regions"
-                per[n] = run_full(kind, "sr", p, by_name[n], a.target_image, a.cache)
+                per[n] = run_full(kind, "sr", {"regions": regions}, by_name[n], False, a.cache)
             elif ref == "mission":
                 from eaglemission.config import load_config
 
                 cfg = load_config(check_plugins=False)
                 p = {**cfg.detector.params}
                 p.setdefault("downscale", 2)
-                label = f"mission's detector ({cfg.detector.type} {json.dumps(cfg.detector.params)})"
-                per[n] = run_full(kind, cfg.detector.type, p, by_name[n], a.target_image, a.cache)
+                label = (f"mission's detector ({cfg.detector.type} "
+                         f"{json.dumps(cfg.detector.params)}"
+                         + (" + appearance prior" if a.target_image else "") + ")")
+                per[n] = run_full(kind, cfg.detector.type, p, by_name[n], a.target_image, a.cache,
+                                  cfg.appearance.model_dump(mode="json"))
             elif ref == "centre_prior":
                 label = "centre_prior"
                 per[n] = run_full(kind, "centre_prior", {}, by_name[n], False, a.cache)
@@ -599,11 +595,11 @@ def main(argv: list[str] | None = None) -> int:
         print(line)
     print("\nChosen per fold (training: the other folds):\n")
     for k, fold in enumerate(folds):
-        point, regions = chosen[k]
-        print(f"- fold {k} ({', '.join(fold)}): {json.dumps(point['params'])} regions "
-              f"{json.dumps(regions)}")
-    print(f"- all sequences (what ships): {json.dumps(final[0]['params'])} regions "
-          f"{json.dumps(final[1])}")
+        point, variant = chosen[k]
+        print(f"- fold {k} ({', '.join(fold)}): {point['detector']} "
+              f"{json.dumps(point['params'])} {json.dumps(variant)}")
+    print(f"- all sequences (what ships): {final[0]['detector']} "
+          f"{json.dumps(final[0]['params'])} {json.dumps(final[1])}")
     if a.per_sequence:
         labels = list(rows)
         print("\nPer sequence (out of fold): on target / any / false per frame"

@@ -5,10 +5,8 @@ temporal state, ``_reset()``. ``detect`` validates the frame (dtype, shape, chan
 resets on a resolution change, and hands the map to :func:`regions.find_regions`.
 
 Context: ``cls(config=..., **context)``; every detector accepts and ignores the keys it does not
-use (``camera_id`` from the runner, ...). ``appearance`` -- an example image of the target, BGR
-uint8 ``(H, W, 3)`` (a tight crop, or a photo on a plain background) or None -- is validated here
-and kept as ``self.appearance``; detectors that use it (``dtdmi``) build their model from it
-(:mod:`eaglemission.detectors.appearance`).
+use (``camera_id`` from the runner, ...). ``saliency_map(frame)`` is the map alone (no regions),
+for a stage that combines maps (the appearance prior, :mod:`eaglemission.perception.prior`).
 """
 
 from __future__ import annotations
@@ -17,11 +15,11 @@ from typing import Any, ClassVar
 
 import cv2
 import numpy as np
-from eaglemission.detectors.regions import RegionsConfig, find_regions
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.errors import InputError
+from eaglemission.perception.regions import RegionsConfig, find_regions
 from eaglemission.types import DetectionResult, Frame, Saliency, TargetPrior
 
 
@@ -42,7 +40,6 @@ class SaliencyDetector:
     def __init__(self, config: BaseModel | None = None, **context: Any) -> None:
         self.config: Any = config if config is not None else self.Config()
         self._shape: tuple[int, int] | None = None
-        self.appearance: np.ndarray | None = validate_appearance(context.get("appearance"))
 
     # -- to implement ---------------------------------------------------------------------------
     def _saliency(self, image: np.ndarray, frame: Frame) -> Saliency:
@@ -65,6 +62,10 @@ class SaliencyDetector:
                 f"{type(self).__name__}._saliency returned {sal.dtype} {sal.shape}, "
                 f"expected float32 {shape}")
         return sal
+
+    def saliency_map(self, frame: Frame) -> Saliency:
+        """The map alone, at the detector's processing resolution (here: the frame's)."""
+        return self.saliency(frame)
 
     def _frame_image(self, frame: Frame) -> np.ndarray:
         """The frame's validated image; a change of resolution drops the temporal state."""
@@ -118,26 +119,3 @@ def validate_image(image: Any) -> np.ndarray:
     if img.shape[0] < 8 or img.shape[1] < 8:
         raise InputError(f"image: must be at least 8x8 pixels, got {img.shape[1]}x{img.shape[0]}")
     return img
-
-
-def validate_appearance(image: Any) -> np.ndarray | None:
-    """The ``appearance`` context value as a contiguous BGR uint8 (H, W, 3) copy, or None.
-
-    Grey (H, W) images become 3-channel; anything else raises :class:`InputError` naming the
-    problem.
-    """
-    if image is None:
-        return None
-    if not isinstance(image, np.ndarray):
-        raise InputError(f"appearance: must be a BGR uint8 numpy array, got {type(image).__name__}")
-    if image.dtype != np.uint8:
-        raise InputError(f"appearance: must be uint8 (8-bit BGR or grey), got {image.dtype}")
-    if image.ndim == 2:
-        image = np.repeat(image[:, :, None], 3, axis=2)
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise InputError(f"appearance: must be (H, W, 3) BGR or (H, W) grey, got shape "
-                         f"{image.shape}")
-    if image.shape[0] < 3 or image.shape[1] < 3:
-        raise InputError(f"appearance: must be at least 3x3 pixels, got "
-                         f"{image.shape[1]}x{image.shape[0]}")
-    return np.ascontiguousarray(image).copy()

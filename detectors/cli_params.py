@@ -58,17 +58,24 @@ def deep_merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+APPEARANCE_SUFFIX = "+appearance"
+"""A label ending in it runs the detector followed by the appearance prior."""
+
+
 @dataclass(frozen=True)
 class DetectorSpec:
-    """A detector to run: plugin ``name``, report ``label`` (``name`` or ``name@variant``)."""
+    """A detector to run: plugin ``name``, report ``label`` (``name``, ``name@variant``, either
+    with ``+appearance``); ``appearance``: the ``appearance`` section's params for the
+    appearance prior after it (None: the detector alone)."""
 
     name: str
     label: str
     params: dict[str, Any] = field(default_factory=dict)
+    appearance: dict[str, Any] | None = None
 
     @property
     def variant(self) -> str | None:
-        return self.label.partition("@")[2] or None
+        return self.label.removesuffix(APPEARANCE_SUFFIX).partition("@")[2] or None
 
 
 def preset_names(name: str) -> tuple[str, ...]:
@@ -86,7 +93,9 @@ def parse_detector_specs(detectors: str, params: Sequence[str]) -> list[Detector
     """``--detectors a,b@v`` and ``--params SPEC:k=v`` -> specs.
 
     ``name:k=v`` applies to every variant of ``name``; ``name@v:k=v`` to that variant only (and
-    wins). A variant named after one of the plugin's presets sets ``preset: v`` unless its params
+    wins). A label ending in ``+appearance`` runs the detector followed by the appearance prior;
+    its ``appearance.*`` params (e.g. ``dtdmi+appearance:appearance.prior.follow_weight=0``) are
+    the ``appearance`` section's. A variant named after one of the plugin's presets sets ``preset: v`` unless its params
     set ``preset`` (``dtdmi@field`` with ``dtdmi@field:downscale=2`` is the field preset at
     downscale 2); any other variant with no params of its own sets ``preset: v`` too (the
     plugin's config then names an unknown preset), one with params of its own is a custom label.
@@ -104,23 +113,51 @@ def parse_detector_specs(detectors: str, params: Sequence[str]) -> list[Detector
             raise UsageError(f"--params {item!r}: write DETECTOR:KEY=VALUE "
                              f"(e.g. dtdmi:preset=literal or ft:regions.threshold=otsu)")
         spec = spec.strip()
-        if spec not in labels and spec not in {lab.partition("@")[0] for lab in labels}:
+        if spec not in labels and spec not in {
+                lab.removesuffix(APPEARANCE_SUFFIX).partition("@")[0] for lab in labels}:
             raise UsageError(f"--params {item!r}: {spec!r} is not in --detectors {detectors!r}")
-        (per_label if "@" in spec else per_name).setdefault(spec, []).append(kv)
+        (per_label if "@" in spec or spec.endswith(APPEARANCE_SUFFIX) else per_name).setdefault(
+            spec, []).append(kv)
     specs = []
     for label in labels:
-        name, _, variant = label.partition("@")
+        base = label.removesuffix(APPEARANCE_SUFFIX)
+        name, _, variant = base.partition("@")
         if not name:
             raise UsageError(f"--detectors: {label!r} has no plugin name before '@'")
-        p = deep_merge(parse_kv(per_name.get(name, [])), parse_kv(per_label.get(label, [])))
+        p = parse_kv(per_name.get(name, []))
+        for key in dict.fromkeys((base, label)):  # the variant's, then the label's own
+            p = deep_merge(p, parse_kv(per_label.get(key, [])))
+        appearance = p.pop("appearance", {}) if base != label else None
+        if appearance is not None and not isinstance(appearance, dict):
+            raise UsageError(f"--params {label}:appearance=...: give its keys, e.g. "
+                             f"{label}:appearance.prior.follow_weight=0")
         if variant and "preset" not in p and variant in preset_names(name):
             p = deep_merge(p, {"preset": variant})
-        elif variant and label not in per_label:
+        elif variant and label not in per_label and base not in per_label:
             cls = registry.get("detectors", name)
             if "preset" not in getattr(cls.Config, "model_fields", {}):
                 raise UsageError(
                     f"--detectors {label!r}: {name!r} has no `preset` param; give the "
                     f"variant's params with --params {label}:KEY=VALUE")
             p = deep_merge(p, {"preset": variant})
-        specs.append(DetectorSpec(name, label, p))
+        specs.append(DetectorSpec(name, label, p, appearance))
     return specs
+
+
+def build_spec(spec: DetectorSpec, image: Any = None) -> Any:
+    """The spec's detector, followed by the appearance prior for a ``+appearance`` label with
+    ``image`` (the target's example image) as its colour model."""
+    from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance
+
+    detector = registry.load("detectors", spec.name, spec.params)
+    if spec.appearance is None:
+        return detector
+    if image is None:
+        raise UsageError(f"--detectors {spec.label}: the appearance prior needs the target's "
+                         f"example image: give --target-image FILE or first-frame")
+    try:
+        cfg = AppearanceConfig.model_validate(spec.appearance)
+    except ValueError as exc:
+        raise UsageError(f"--params {spec.label}:appearance.*: {exc}") from None
+    return TargetAppearance(image=image, example=cfg.example).with_prior(
+        detector, cfg.prior or AppearanceConfig().prior)

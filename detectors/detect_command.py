@@ -24,12 +24,13 @@ from eaglemission.detectors.inputs import (
     read_image,
     read_target_image,
 )
-from eaglemission.detectors.regions import to_uint8
 from numpy.typing import NDArray
 
 from eaglemission import registry
 from eaglemission.commands import Command
 from eaglemission.errors import InputError
+from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance
+from eaglemission.perception.regions import to_uint8
 from eaglemission.types import DetectionResult, Frame, TargetPrior
 
 # the logger keeps the name of the module the command came from (eaglemission.detectors.cli,
@@ -167,8 +168,8 @@ def _detect_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-video", action="store_true", help="images only, no overlay.mp4")
     p.add_argument("--target-image", default=None, metavar="PATH",
                    help="an example image of the target (a tight crop, or a photo on a plain "
-                        "background) for detectors that use one; default: the --config mission "
-                        "file's target.appearance_image")
+                        "background): the detector is followed by the appearance prior; "
+                        "default: the --config mission file's target.appearance_image")
     g = p.add_argument_group("target prior (keeps only regions that fit; off by default)")
     g.add_argument("--min-area-px", type=float, default=None, help="smallest MBR area, px^2")
     g.add_argument("--max-area-px", type=float, default=None, help="largest MBR area, px^2")
@@ -203,9 +204,13 @@ def run_detect(args: argparse.Namespace) -> int:
         raise UsageError(f"--max-frames: must be >= 1, got {args.max_frames}")
     name, params = detector_from_args(args)
     prior = prior_from_args(args)
-    appearance = target_image_from_args(args)
-    detector = registry.load("detectors", name, params,
-                             **({"appearance": appearance} if appearance is not None else {}))
+    image = target_image_from_args(args)
+    detector = registry.load("detectors", name, params)
+    if image is not None:  # the appearance prior after the detector, as the mission flies it
+        section = _config_data(args.config).get("appearance") if args.config else None
+        cfg = AppearanceConfig.model_validate(section or {})
+        detector = TargetAppearance(image=image, example=cfg.example).with_prior(detector,
+                                                                                 cfg.prior)
     out = Path(args.out)
     frames_iter = iter_input(Path(args.input), args.fps, args.max_frames)
     out.mkdir(parents=True, exist_ok=True)

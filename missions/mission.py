@@ -201,7 +201,7 @@ class ApproachMission:
         models = {c: cam.model for c, cam in p.cameras.items()}
         runner = MissionRunner(cfg, self.config, vehicle=p.vehicle, cameras=dict(p.cameras),
                                models=models, detectors=dict(p.detectors), coarse=p.coarse,
-                               fine=p.fine, fitter=p.fitter, tracker=p.tracker,
+                               fine=p.fine, fitter=p.fitter, appearance=p.appearance,
                                clock=clock, mission_log=mlog,
                                grasp_callback=h.grasp_callback, on_frame=h.on_frame,
                                on_telemetry=on_telemetry, record_all=h.record_all,

@@ -1,13 +1,20 @@
-"""Perception of one frame: detect, select, track, estimate, fit (paper Sec. 3.2 plus the
-additions docs/mission.md lists). Pure given its inputs; it runs in a worker thread and returns
-an immutable :class:`Measurement`, the only thing that crosses back to the event loop.
+"""Perception of one frame, one pipeline of named stages (paper Sec. 3.2 and the additions
+docs/architecture.md lists, "Perception"). Pure given its inputs; it runs in a worker thread and
+returns an immutable :class:`Measurement`, the only thing that crosses back to the event loop.
 
-The steps, each behind the Protocol of its role: the camera's detector (``Detector``); the
-detection nearest the predicted pixel among the plausible ones (size from the camera's pose,
-the target's colour through the ``Tracker``); at close range the tracker's colour region when
-the detector gives none; the state's estimator (``Estimator``), falling back on the coarse one
-when the fine one refuses; the top-plane fit (``PlaneFitter``) with, at close range, the
-apparent-size range fused in.
+1. **detect** (:func:`detect`): the camera's detector (``Detector``; with an example image of
+   the target, followed by the appearance prior: :mod:`eaglemission.perception.prior`); a map
+   that is not finite is an anomaly and gives no detections.
+2. **choose the target** (:func:`target_candidates`): the plausible detection nearest the
+   predicted pixel (its size from the camera's pose, the target's colour), and at close range
+   the region of the target's colour: the candidates in order of preference, each with where it
+   came from.
+3. **measure its pose** (:meth:`Perception.measure`): the state's estimator (``Estimator``: fine,
+   or a down-weighted coarse FALLBACK when the fine one refuses), then the fit of the target's box
+   on the plane of its top (``PlaneFitter``, with the apparent-size range at close range) gives
+   the position; the first candidate that yields a measurement is the frame's.
+
+Filtering over time is :mod:`.tracking`'s.
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ from __future__ import annotations
 import enum
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -31,7 +38,8 @@ from numpy.typing import NDArray
 
 from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
-from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter, Tracker
+from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter
+from eaglemission.perception.appearance import TargetAppearance
 from eaglemission.recording.foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
@@ -67,17 +75,17 @@ class FitHint:
     silhouette_yaw_deg: float | None = None
 
 
-def colour_outline(det: Detection, frame: Frame, tracker: Tracker | None, tracked: bool
-                   ) -> NDArray[np.float64] | None:
+def colour_outline(det: Detection, frame: Frame, appearance: TargetAppearance | None,
+                   tracked: bool) -> NDArray[np.float64] | None:
     """The outline the shape check compares with the target's (``silhouette_iou``): that of the
     target colour's region, the whole silhouette (the top and the shaded sides share its
     chromaticity), not the detector's region (a saliency threshold may cut a shaded face:
     measured, true targets' outlines then fit at IoU ~0.7); the colour region must be the
-    detection's object (its centre inside the detection's MBR). None without a colour
-    tracker (the check is then not made)."""
-    if tracker is None or not tracker.available:
+    detection's object (its centre inside the detection's MBR). None without the target's
+    colour (the check is then not made)."""
+    if appearance is None or not appearance.has_colour:
         return None
-    col = det if tracked else tracker.track(frame, det.center_px)
+    col = det if tracked else appearance.colour_region(frame, det.center_px)
     if col is None or col.hull_px is None:
         return None
     if not inside_polygon(col.center_px, det.corners_px):
@@ -106,7 +114,7 @@ class Tools:
     coarse: Estimator
     fine: Estimator
     fitter: PlaneFitter | None = None
-    tracker: Tracker | None = None
+    appearance: TargetAppearance | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -239,6 +247,76 @@ def inside_polygon(point_px: tuple[float, float], corners_px: NDArray[np.float64
     return cv2.pointPolygonTest(poly, (float(point_px[0]), float(point_px[1])), False) >= 0
 
 
+Measured = tuple[TargetEstimate | None, "Provenance | None", bool, str | None,
+                 "FitHint | None", "PlaneMeasurement | None"]
+"""What :meth:`Perception.measure` gives: (estimate, provenance, refined, failure, new fit hint,
+plane measurement)."""
+NOT_MEASURED: Measured = (None, None, False, None, None, None)
+
+
+def detect(detector: Detector, frame: Frame) -> tuple[DetectionResult, str | None]:
+    """Stage 1: the detector's result, and ``"nan_map"`` when its map or a region is not finite
+    (those detections dropped: a detector fault must not steer the vehicle)."""
+    result = detector.detect(frame, _prior(frame.camera_id))
+    if not bool(np.isfinite(result.saliency).all()):
+        return replace(result, detections=()), "nan_map"
+    if any(not np.isfinite(d.corners_px).all() for d in result.detections):
+        return replace(result, detections=tuple(
+            d for d in result.detections if np.isfinite(d.corners_px).all())), "nan_map"
+    return result, None
+
+
+def target_candidates(result: DetectionResult, req: Request,
+                      appearance: TargetAppearance | None, p: ApproachConfig,
+                      target: TargetConfig, has_fitter: bool
+                      ) -> Iterator[tuple[Detection | None, bool]]:
+    """Stage 2: the candidates for the target in this frame, best first, each with whether it
+    is the target colour's region (True) or the detector's (False); the pose stage measures the
+    first it can.
+
+    - The detector's: the plausible detection nearest the predicted pixel (``gate_px``: a
+      quarter of the image), plausible = of the size the camera's pose expects
+      (``size_ratio_range``) and, with ``colour_check`` and a known colour, of the target's
+      colour; cut by the image border only at close range with a plane fit that has the
+      heading of an earlier complete view.
+    - At close range with ``colour_track`` and a known colour, the region of the target's
+      colour near the predicted pixel: first when the detector has none, or when the fine
+      estimator is asked and the regions agree (:func:`regions_agree`: the colour region
+      follows the target's edges, a saliency threshold need not; not with
+      ``plane_from_size``); otherwise after the detector's, when that one cannot be measured.
+    """
+    frame, model, state = req.frame, req.model, req.state
+    colour = appearance if appearance is not None and appearance.has_colour else None
+    check_colour = colour is not None and p.colour_check
+    gate_px = 0.25 * max(model.width_px, model.height_px)
+
+    def plausible(d: Detection) -> bool:
+        return (plausible_size(d, model, state, target, *p.size_ratio_range)
+                and (not check_colour or colour is None or colour.colour_matches(frame, d)))
+
+    allow_cut = req.close_range and has_fitter and p.plane_fit and req.fit_hint is not None
+    det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
+                           p.image_border_px, gate_px, plausible, allow_cut=allow_cut)
+    near = req.predicted_px
+    if not (req.close_range and p.colour_track and colour is not None and near is not None
+            and bool(np.isfinite(near).all())):
+        yield det, False
+        return
+    if det is None or (req.estimator == "fine" and not p.plane_from_size):
+        region = colour.colour_region(frame, near)
+        if region is not None and (det is None or regions_agree(region, det)):
+            yield region, True
+            return
+        yield det, False
+        if det is not None and region is not None:
+            yield region, True
+        return
+    yield det, False
+    region = colour.colour_region(frame, near)
+    if region is not None:
+        yield region, True
+
+
 def _prior(camera_id: str, wide_id: str = "wide") -> TargetPrior:
     return TargetPrior(min_area_px=12.0 if camera_id == wide_id else 100.0)
 
@@ -257,69 +335,32 @@ class Perception:
 
     def perceive(self, req: Request, tools: Tools) -> Measurement:
         t0 = time.perf_counter()
-        p = self.p
-        frame, model, state = req.frame, req.model, req.state
-        result = tools.detector.detect(frame, _prior(frame.camera_id))
-        anomaly = None
-        if not bool(np.isfinite(result.saliency).all()):
-            anomaly = "nan_map"
-            result = replace(result, detections=())
-        elif any(not np.isfinite(d.corners_px).all() for d in result.detections):
-            anomaly = "nan_map"
-            result = replace(result, detections=tuple(
-                d for d in result.detections if np.isfinite(d.corners_px).all()))
-        tracker = tools.tracker if tools.tracker is not None and tools.tracker.available \
-            else None
-        check_colour = tracker is not None and p.colour_check
-        gate_px = 0.25 * max(model.width_px, model.height_px)
-
-        def plausible(d: Detection) -> bool:
-            return (plausible_size(d, model, state, self.target, *p.size_ratio_range)
-                    and (tracker is None or not check_colour or tracker.matches(frame, d)))
-
-        allow_cut = req.close_range and tools.fitter is not None and p.plane_fit \
-            and req.fit_hint is not None
-        det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
-                               p.image_border_px, gate_px, plausible, allow_cut=allow_cut)
-        track_px = req.predicted_px
-        track = (req.close_range and p.colour_track and tracker is not None
-                 and track_px is not None and bool(np.isfinite(track_px).all()))
-        tracked = False
-        alt: Detection | None = None  # the colour region near track_px, looked up once
-        looked = False
-        if track and tracker is not None and track_px is not None and (
-                det is None or (req.estimator == "fine" and not p.plane_from_size)):
-            # close range: the target colour's own region, when it agrees with the detector's
-            # (the fine estimator fits the box to a region's outline: the colour region follows
-            # the target's edges, a saliency region's threshold need not, and a refused fit
-            # costs a second one). Not with plane_from_size: the plane measured from the colour
-            # region's apparent size ended 7.8 cm off in the closed-loop test (< 5 cm asked)
-            alt, looked = tracker.track(frame, track_px), True
-            if alt is not None and (det is None or regions_agree(alt, det)):
-                det, tracked = alt, True
-        out = self._estimate(det, req, tools, tracked)
-        if (track and not tracked and det is not None and out[0] is None
-                and tracker is not None and track_px is not None):
-            # the detector's region does not fit the target: try its colour region
-            if not looked:
-                alt = tracker.track(frame, track_px)
-            alt_out = self._estimate(alt, req, tools, True)
-            if alt_out[0] is not None:
-                det, out, tracked = alt, alt_out, True
+        frame, state = req.frame, req.state
+        result, anomaly = detect(tools.detector, frame)
+        chosen: tuple[Detection | None, bool, Measured] | None = None
+        for cand, colour in target_candidates(result, req, tools.appearance, self.p,
+                                              self.target, tools.fitter is not None):
+            measured = self.measure(cand, req, tools, colour)
+            if chosen is None or measured[0] is not None:
+                chosen = (cand, colour, measured)  # the first, unless a later one measures
+            if measured[0] is not None:
+                break
+        det, from_colour, out = chosen or (None, False, NOT_MEASURED)
         est, prov, refined, failure, hint, plane = out
         return Measurement(frame.camera_id, frame, state, req.estimator, det,
-                           len(result.detections), tracked,
+                           len(result.detections), from_colour,
                            est, prov, refined, failure, hint, plane,
                            (time.perf_counter() - t0) * 1e3, anomaly,
                            None if anomaly or not self.thumbnails
                            else saliency_thumbnail(result.saliency))
 
-    def _estimate(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
-                  ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,
-                             FitHint | None, PlaneMeasurement | None]:
-        """(estimate, provenance, refined, failure, new fit hint, plane measurement)."""
+    def measure(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
+                ) -> Measured:
+        """Stage 3, the pose of one candidate: (estimate, provenance, refined, failure, new fit
+        hint, plane measurement); the estimate is None when nothing was asked or the candidate
+        cannot be measured (``failure`` says why)."""
         if det is None or req.estimator is None or req.state is None:
-            return None, None, False, None, None, None
+            return NOT_MEASURED
         view = CameraView(req.model, req.state, req.frame.timestamp_ns)
         primary = tools.fine if req.estimator == "fine" else tools.coarse
         est = primary.estimate(det, view)
@@ -339,12 +380,11 @@ class Perception:
         assert isinstance(est, TargetEstimate)
         if not (self.p.plane_fit and tools.fitter is not None):
             return est, prov, False, None, None, None
-        return self._refine(est, prov, det, view, req, tools.fitter, tracked, tools.tracker)
+        return self._refine(est, prov, det, view, req, tools.fitter, tracked, tools.appearance)
 
     def _refine(self, est: TargetEstimate, prov: Provenance, det: Detection, view: CameraView,
-                req: Request, fitter: PlaneFitter, tracked: bool, tracker: Tracker | None = None
-                ) -> tuple[TargetEstimate | None, Provenance | None, bool, str | None,
-                           FitHint | None, PlaneMeasurement | None]:
+                req: Request, fitter: PlaneFitter, tracked: bool,
+                appearance: TargetAppearance | None = None) -> Measured:
         """Replace the estimate's position by the top-plane fit of its detection (top face or
         box silhouette, whichever explains the MBR). In the final approach a detection no
         model explains (part of the target, a merged blob) is refused; earlier the estimator's
@@ -367,7 +407,7 @@ class Perception:
             region_hint = "box"
         plane_ground = plane_down_m(0.0, req.plane, p.plane_offset)
         whole = req.close_range and not cut
-        outline = colour_outline(det, req.frame, tracker, tracked) if whole else None
+        outline = colour_outline(det, req.frame, appearance, tracked) if whole else None
         fit = fitter.fit(det if outline is None else replace(det, hull_px=outline), view,
                          plane_down_m=plane_ground, yaw_hint_deg=yaw_hint,
                          region_hint=region_hint, iterations=8 if cut else 4,

@@ -60,8 +60,9 @@ from eaglemission.clock import Clock, run_blocking
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
 from eaglemission.geometry.geofence import inside_geofence
-from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Tracker, Vehicle
+from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Vehicle
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.perception.appearance import TargetAppearance
 from eaglemission.recording.provenance import config_record
 from eaglemission.safety.autopilot_guard import AutopilotGuard
 from eaglemission.safety.envelope import SafeVehicle
@@ -89,7 +90,7 @@ class MissionRunner:
         unless it already is one, so no plugin can bypass the envelope
     cameras : ``{"wide": Camera, "narrow": Camera}``; models : their (nominal) models
     detectors : one detector per camera (their temporal state is per camera)
-    coarse, fine : estimators; fitter : the plane fitter; tracker : the appearance tracker
+    coarse, fine : estimators; fitter : the plane fitter; appearance : the target's appearance
     clock : the mission clock; mission_log : JSON-lines log
     grasp_callback : awaited in GRASP_READY when ``mission.grasp_action == "callback"``
     on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
@@ -101,7 +102,7 @@ class MissionRunner:
                  cameras: Mapping[str, Camera], models: Mapping[str, CameraModel],
                  detectors: Mapping[str, Detector], coarse: Estimator, fine: Estimator,
                  clock: Clock, mission_log: MissionLog, fitter: PlaneFitter | None = None,
-                 tracker: Tracker | None = None,
+                 appearance: TargetAppearance | None = None,
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
                  on_telemetry: Callable[[VehicleState], None] | None = None, record_all: bool = False,
@@ -112,7 +113,7 @@ class MissionRunner:
         self.vehicle: SafeVehicle = (vehicle if isinstance(vehicle, SafeVehicle)
                                      else SafeVehicle(vehicle, cfg.safety, clock=clock))
         self.cameras, self.models = dict(cameras), dict(models)
-        self.tools = {c: Tools(detectors[c], coarse, fine, fitter, tracker) for c in cameras}
+        self.tools = {c: Tools(detectors[c], coarse, fine, fitter, appearance) for c in cameras}
         self.clock, self.log = clock, mission_log
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
         self.record_all, self.on_processed = record_all, on_processed or (lambda _f, _t: None)

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from eaglemission.detectors.base import DetectorConfig
-from eaglemission.detectors.regions import RegionsConfig
 from pydantic import Field, field_validator, model_validator
+
+from eaglemission.perception.regions import RegionsConfig
 
 
 class DTDMIConfig(DetectorConfig):
@@ -38,11 +39,9 @@ class DTDMIConfig(DetectorConfig):
         "weight of a colour bin in the clustering: its pixel count, or its square root "
         "(rare colours, e.g. a small target, get a cluster of their own)"))
     use_static: bool = True
-    use_dynamic: bool | None = Field(None, description=(
-        "the dynamic part (Eqs. (7)-(14)); None: as the preset says (aerial: off when the "
-        "detector has an example image of the target -- out of fold on real UAV footage it "
-        "added nothing there, 77.3 % against 77.9 % without it, at ~2.3x the time -- and on "
-        "without one, 40.3 % against 31.5 %; the others: on)"))
+    use_dynamic: bool = Field(True, description=(
+        "the dynamic part (Eqs. (7)-(14)); off, the map is the static part alone (a target "
+        "static on the ground moves in the image as the ground does: docs/detectors.md)"))
     # -- preset-dependent (None: as the preset says)
     spatial_weight: Literal["inverse_square", "gaussian"] | None = None
     colour_space: Literal["lms", "log_lms", "lalphabeta"] | None = None
@@ -89,42 +88,6 @@ class DTDMIConfig(DetectorConfig):
         "S / (S + saturation), so 'no target' stays dark"))
     saturation: float | None = Field(None, gt=0, description=(
         "S that maps to 0.5 with output_scale=absolute (T = 120/255 needs S > 0.89 x this)"))
-    # -- appearance prior (used only when the detector gets an `appearance` image)
-    appearance_prior: float = Field(0.1, gt=0, le=1, description=(
-        "fraction of the frame the target is expected to cover (colour back-projection)"))
-    appearance_saliency_weight: float = Field(0.25, ge=0, le=100, description=(
-        "with an appearance image: S <- A + this x S (A: the colour back-projection)"))
-    appearance_rank_exponent: float | None = Field(None, ge=0, le=32, description=(
-        "with an appearance image: regions re-ranked by score x BC^this (BC: Bhattacharyya "
-        "coefficient of the region's colour histogram and the example's); 0: off; None: as the "
-        "preset says (aerial: 8, the others: 4)"))
-    appearance_candidates: int = Field(12, ge=1, le=100, description=(
-        "with an appearance image: regions re-ranked before keeping regions.max_detections"))
-    appearance_pool: bool | None = Field(None, description=(
-        "with an appearance image: pool every colour bin with its 26 neighbours in the colour "
-        "model, its back-projection and the re-ranking histograms (tolerance to shading); "
-        "false: the 4096 bins as they are (finer colour discrimination); None: as the preset "
-        "says"))
-    appearance_exposure_span: float | None = Field(None, ge=1, le=4, description=(
-        "with an appearance image: the colour model holds the example's histograms at exposure "
-        "gains from 1/this to this, and each frame uses the gain at which the example's colours "
-        "are most present in it (tolerance to light and exposure); 1: the example's colours as "
-        "they are; None: as the preset says (aerial: 1.5; the others: 1)"))
-    appearance_track_weight: float | None = Field(None, ge=0, le=1, description=(
-        "with an appearance image: the map attenuated away from the previous frame's best "
-        "detection, S x ((1 - this) + this x G), G a Gaussian of appearance_track_sigma_frac; "
-        "0: off; None: as the preset says (aerial: 0.3; the others: 0)"))
-    appearance_track_sigma_frac: float = Field(0.1, gt=0, le=1, description=(
-        "sigma of appearance_track_weight's Gaussian, fraction of the image diagonal"))
-    appearance_peak_fraction: float | None = Field(None, gt=0, le=1, description=(
-        "with an appearance image: the adaptive regions' peak_fraction (the colour model makes "
-        "the target's region brighter than its surroundings); None: as the preset says "
-        "(aerial: 0.7, measured out of fold with the image; the others: regions.peak_fraction)"))
-    appearance_floor: int | None = Field(None, ge=1, le=254, description=(
-        "with an appearance image: the adaptive regions' adaptive_floor on 0..255 (a frame "
-        "whose image-weighted map stays below it has no region: no target); None: as the "
-        "preset says (aerial: 30, from target-free real ground; the others: "
-        "regions.adaptive_floor)"))
     colour_propagation: float | None = Field(None, ge=0, le=1, description=(
         "S <- (1 - this) S + this x (the mean of S over the pixels of each pixel's colour bin); "
         "0: off; None: as the preset says"))
@@ -183,13 +146,7 @@ class Resolved:
     block_unit: float = 20.0
     block_fusion: str = "static"
     ego_motion: str = "none"
-    appearance_pool: bool = True
-    appearance_exposure_span: float = 1.0
-    appearance_rank_exponent: float = 4.0
-    appearance_track_weight: float = 0.0
     colour_propagation: float = 0.0
-    appearance_peak_fraction: float | None = None
-    appearance_floor: int | None = None
 
 
 #: field preset: S_s (chromatic l-alpha-beta units) mapped to 0.5; T = 120/255 then needs
@@ -208,20 +165,12 @@ PRESETS: dict[str, Resolved] = {
     "field": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.001, 0.0, "absolute",
                       FIELD_SATURATION, luminance_weight=0.0, spread_sigma_frac=0.1,
                       contrast_level="bin", fusion="boost", dynamic_gain=FIELD_GAIN),
-    # aerial: tuned out of fold on ../shared's UAV sequences (benchmarks/tune_real.py); with an
-    # example image of the target: unpooled colour bins, re-ranking exponent 8 (grid
-    # aerial_appearance; that run's choice on all sequences also lowered regions.peak_fraction
-    # to 0.7: appearance_peak_fraction, used only with an image); with an image, no region
-    # below 30 on 0..255 (appearance_floor: docs/detectors.md, "On real ground photos"); with
-    # that floor the grid's choice on all ten also follows the previous best detection (0.3)
+    # aerial: tuned out of fold on real UAV sequences (benchmarks/tune_real.py)
     "aerial": Resolved("inverse_square", "lalphabeta", False, 0.25, 1.0, 0.003, 0.0, "absolute",
                        3.0, luminance_weight=0.6, spread_sigma_frac=0.1, contrast_level="bin",
                        fusion="max", dynamic_gain=2.5, colour_weight=1.0, block_weight=1.0,
                        block_radius_frac=0.0055, block_luminance_weight=0.6, block_downscale=2,
-                       ego_motion="homography", appearance_pool=False,
-                       appearance_rank_exponent=8.0, appearance_peak_fraction=0.7,
-                       appearance_floor=30, appearance_track_weight=0.3,
-                       appearance_exposure_span=1.5),
+                       ego_motion="homography"),
 }
 
 #: Each preset's ``regions`` defaults (given keys override them; regions.py has the meaning).
@@ -234,15 +183,6 @@ PRESET_REGIONS: dict[str, dict[str, Any]] = {
     "aerial": {"threshold": "adaptive", "adaptive_floor": 20, "peak_fraction": 0.8,
                "max_aspect": 5.0},
 }
-
-
-def dynamic_on(cfg: DTDMIConfig, has_image: bool) -> bool:
-    """``use_dynamic``, or the preset's choice when None: ``aerial`` drops the dynamic part
-    when the detector has an example image of the target (``has_image``), the others keep it
-    (docs/detectors.md, "Which detector for which scene")."""
-    if cfg.use_dynamic is not None:
-        return cfg.use_dynamic
-    return not (cfg.preset == "aerial" and has_image)
 
 
 def resolve(cfg: DTDMIConfig) -> Resolved:

@@ -18,11 +18,7 @@
   threshold.
 
 The ``default`` preset also blends the final map with its mean per colour bin
-(``colour_propagation``, :mod:`.refine`). An example image of the target (context
-``appearance``, :mod:`eaglemission.detectors.appearance`) adds its colour back-projection ``A``:
-``S <- A + appearance_saliency_weight x S``; the regions are then re-ranked by colour histogram
-and, with ``appearance_track_weight`` > 0, the map is first attenuated away from the previous
-frame's best detection.
+(``colour_propagation``, :mod:`.refine`).
 
 Every preset-dependent knob is a config field whose ``None`` means "as the preset says".
 
@@ -33,36 +29,14 @@ References
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any, ClassVar
 
-import cv2
 import numpy as np
 from eaglemission.detectors.base import SaliencyDetector
 from eaglemission.detectors.dtdmi.config import DTDMIConfig
 from eaglemission.detectors.dtdmi.engine import DTDMIEngine
-from eaglemission.detectors.dtdmi.refine import spotlight_factors, spotlit_saliency
-from eaglemission.detectors.regions import find_regions, reduced_prior, to_frame_pixels
 
-from eaglemission.types import Detection, DetectionResult, Frame, Saliency, TargetPrior
-
-
-def appearance_rerank(dets: tuple[Detection, ...], image: np.ndarray, model: Any,
-                      gamma: float, keep: int, exposure: int | None = None
-                      ) -> tuple[Detection, ...]:
-    """Detections re-ranked by ``score x BC^gamma`` (BC: the Bhattacharyya coefficient of the
-    region's colour histogram, pooled as the model's, and the example's at the frame's
-    ``exposure``, :meth:`..appearance.AppearanceModel.match`), the best ``keep``, that
-    product as their score (:mod:`eaglemission.detectors.appearance`); ``image`` at the
-    detections' resolution."""
-    from eaglemission.detectors.appearance import region_histogram
-
-    def bc(d: Detection) -> float:
-        return float(model.match(region_histogram(image, d.corners_px, pool=model.pool),
-                                 exposure))
-
-    ranked = sorted(((d.score * bc(d) ** gamma, k) for k, d in enumerate(dets)), reverse=True)
-    return tuple(replace(dets[k], score=float(s)) for s, k in ranked[:keep])
+from eaglemission.types import Frame, Saliency
 
 
 class DTDMIDetector(SaliencyDetector):
@@ -77,84 +51,14 @@ class DTDMIDetector(SaliencyDetector):
         self.engine = DTDMIEngine(self.config)
         if self.engine.numba:
             self._warm_up()
-        #: centre (u, v) of the previous frame's best detection (with an appearance image)
-        self.track_px: tuple[float, float] | None = None
-        if self.appearance is not None:
-            from eaglemission.detectors.appearance import AppearanceModel
 
-            self.engine.set_appearance(AppearanceModel.from_image(
-                self.appearance, prior=self.config.appearance_prior,
-                pool=self.engine.r.appearance_pool,
-                exposure_span=self.engine.r.appearance_exposure_span))
-
-    def detect(self, frame: Frame, prior: TargetPrior | None = None) -> DetectionResult:
-        """Regions of the map. With an appearance image: the map is attenuated away from the
-        previous frame's best detection (``appearance_track_weight``,
-        :func:`.refine.spotlit_saliency`), and the ``appearance_candidates`` best regions are
-        re-ranked by ``score x BC^appearance_rank_exponent`` (their colour histogram against
-        the example's, :meth:`..appearance.AppearanceModel.match`) and
-        ``regions.max_detections`` kept, with that product as their score. With ``downscale``
-        > 1 (and no colour propagation) all of this runs on the map at the processing
-        resolution, which has no finer detail than that, and the detections are mapped to the
-        frame's pixels (:func:`..regions.to_frame_pixels`); the map is upsampled for the
-        result."""
-        model = self.engine.appearance
-        if model is None:
-            return super().detect(frame, prior)
+    def saliency_map(self, frame: Frame) -> Saliency:
+        """The map alone at the processing resolution (1/``downscale`` of the frame's; the
+        frame's with colour propagation, which reads it): for a stage that combines maps
+        (the appearance prior)."""
         image = self._frame_image(frame)
-        h, w = image.shape[:2]
-        # the map, following and regions at the processing resolution (the map has no finer
-        # detail: it is upsampled once, for the result); the detections in frame pixels
         native = self.config.downscale > 1 and self.engine.r.colour_propagation == 0
-        sal = self.engine.saliency(image, frame.timestamp_ns, native)
-        sx, sy = w / sal.shape[1], h / sal.shape[0]
-        track = None if self.track_px is None else (
-            (self.track_px[0] - (sx - 1) / 2) / sx, (self.track_px[1] - (sy - 1) / 2) / sy)
-        sal = self.follow(sal, track)
-        cfg = self.config.regions
-        r = self.engine.r
-        update: dict[str, Any] = {"min_area_px": cfg.min_area_px / (sx * sy)}
-        if r.appearance_peak_fraction is not None:
-            update["peak_fraction"] = r.appearance_peak_fraction
-        if r.appearance_floor is not None:
-            update["adaptive_floor"] = r.appearance_floor
-        gamma = r.appearance_rank_exponent
-        if gamma > 0:
-            update["max_detections"] = max(cfg.max_detections, self.config.appearance_candidates)
-        wide = cfg.model_copy(update=update)
-        dets, threshold = find_regions(sal, wide, reduced_prior(prior, sx, sy),
-                                       camera_id=frame.camera_id)
-        if gamma > 0:
-            colours = self.engine.work if native and self.engine.work is not None else image
-            dets = appearance_rerank(dets, colours, model, gamma, cfg.max_detections,
-                                     self.engine.exposure)
-        kept = tuple(to_frame_pixels(d, sx, sy) for d in dets) if native else dets
-        self.track_px = kept[0].center_px if kept else None
-        if native:
-            sal = np.asarray(cv2.resize(sal, (w, h), interpolation=cv2.INTER_LINEAR),
-                             dtype=np.float32)
-        return DetectionResult(sal, kept, frame.timestamp_ns, frame.camera_id, frame.seq,
-                               threshold)
-
-    def follow(self, sal: Saliency, track_px: tuple[float, float] | None) -> Saliency:
-        """``sal`` attenuated away from ``track_px`` (the previous best detection) by
-        ``appearance_track_weight`` (:func:`.refine.spotlit_saliency`); unchanged without a
-        previous detection or with the weight 0."""
-        weight = self.engine.r.appearance_track_weight
-        if track_px is None or weight == 0:
-            return sal
-        h, w = sal.shape
-        sigma = self.config.appearance_track_sigma_frac * float(np.hypot(h, w))
-        if not self.engine.numba:
-            return spotlit_saliency(sal, track_px, sigma, weight)
-        from eaglemission.detectors.dtdmi.kernels_general import spotlight
-
-        g_rows, g_cols, keep = spotlight_factors(sal.shape, track_px, sigma, weight)
-        # in place: the engine's map is a new array every frame (a fresh full-resolution plane
-        # costs ~1 ms of page faults at 1280x960)
-        out = sal if sal.flags.writeable and sal.flags.c_contiguous else sal.copy()
-        spotlight(out, g_rows, g_cols, float(keep), out)
-        return out
+        return self.engine.saliency(image, frame.timestamp_ns, native)
 
     def _warm_up(self) -> None:
         """Compile (or load from numba's cache) every kernel now, not on the first real frame."""
@@ -166,7 +70,6 @@ class DTDMIDetector(SaliencyDetector):
 
     def _reset(self) -> None:
         self.engine.reset()
-        self.track_px = None
 
     def _saliency(self, image: np.ndarray, frame: Frame) -> Saliency:
         return self.engine.saliency(image, frame.timestamp_ns)

@@ -14,7 +14,7 @@ import cv2
 import eaglemission.detectors.dtdmi.equations_fusion as fusion
 import eaglemission.detectors.dtdmi.refine as refine
 import numpy as np
-from eaglemission.detectors.dtdmi.config import DTDMIConfig, dynamic_on, resolve
+from eaglemission.detectors.dtdmi.config import DTDMIConfig, resolve
 from eaglemission.detectors.dtdmi.dynamic import DynamicParams, MidbrainDynamic, scale_shape
 from eaglemission.detectors.dtdmi.equations_static import gaussian_centre_weight
 from eaglemission.detectors.dtdmi.maps import (
@@ -24,7 +24,9 @@ from eaglemission.detectors.dtdmi.maps import (
     smooth_reduced,
     smoothing_factor,
 )
-from eaglemission.detectors.dtdmi.static import NBINS, ClusterStatic, StaticParams, quantize_bgr
+from eaglemission.detectors.dtdmi.static import ClusterStatic, StaticParams
+
+from eaglemission.perception.colour_bins import NBINS, quantize_bgr
 
 
 class DTDMIEngine:
@@ -57,24 +59,15 @@ class DTDMIEngine:
             ego_motion=self.r.ego_motion, ego_motion_width_px=cfg.ego_motion_width_px,
             backend=cfg.backend, floor=cfg.dynamic_floor))
         self._shape: tuple[int, int] | None = None
-        self.appearance: Any = None  # AppearanceModel (detectors/appearance.py) or None
-        self.work: np.ndarray | None = None  # the last frame at the processing resolution
-        self.exposure: int | None = None  # the appearance model's exposure for the last frame
-        # S_s as a weighted sum of cues, the max fusion or an appearance image: the general
-        # (unstreamed) path of _general_saliency
+        # S_s as a weighted sum of cues or the max fusion: the general (unstreamed) path of
+        # _general_saliency
         self.general = (self.r.block_weight > 0 or self.r.fusion == "max"
                         or self.r.colour_weight != 1.0)
 
-    def set_appearance(self, model: Any) -> None:
-        """Use an appearance model (or None) from the next frame on."""
-        self.appearance = model
-        self.general = self.general or model is not None
-        self._shape = None  # reallocate: the general path does not pool the smoothing
-
     @property
     def use_dynamic(self) -> bool:
-        """Whether the dynamic part runs (:func:`.config.dynamic_on`)."""
-        return dynamic_on(self.cfg, self.appearance is not None)
+        """Whether the dynamic part runs (``use_dynamic``)."""
+        return self.cfg.use_dynamic
 
     def reset(self) -> None:
         self.static.reset()
@@ -167,7 +160,6 @@ class DTDMIEngine:
             lut = self.static.bin_saliency_from_hist(hist, whist, timestamp_ns)  # Eqs. (2)-(6)
         if self.r.static_exponent != 1.0:
             lut = np.power(lut, np.float32(self.r.static_exponent))
-        self._frame_hist = hist  # the sampled colour counts (appearance prior)
         return lut
 
     def _dynamic_and_product(self, work: np.ndarray, lut: np.ndarray | None,
@@ -303,16 +295,14 @@ class DTDMIEngine:
         """S of the general path into ``self._out`` (no per-pixel fusion kernel): S_s as
         ``colour_weight x`` the colour cue ``+ block_weight x`` the block contrast cue (or the
         block cue added after Eq. (15), ``block_fusion: add``), Eq. (15) as the preset's fusion
-        with S_M (Eqs. (7)-(14)), then the appearance prior and the centre weight."""
+        with S_M (Eqs. (7)-(14)), then the centre weight."""
         r = self.r
         out = self._out
         s: np.ndarray | None = None
         blk: np.ndarray | None = None
-        hist = None
         if self.cfg.use_static:
             if r.colour_weight > 0:
                 lut = self._static_lut(work, timestamp_ns)
-                hist = self._frame_hist
                 if r.colour_weight != 1.0:  # on the look-up: the same products as on the plane
                     lut = lut * np.float32(r.colour_weight)
                 s = self._s
@@ -331,14 +321,6 @@ class DTDMIEngine:
                 s = fusion.final_saliency(s, out).astype(np.float32)
         if blk is not None:  # block_fusion "add": after Eq. (15)
             s = blk if s is None else np.add(s, blk, out=s)
-        if self.appearance is not None:
-            a_lut, self.exposure = appearance_lut(self.appearance, work, hist)
-            weight = float(self.cfg.appearance_saliency_weight)
-            if s is None:
-                self._paint(work, a_lut, out)
-            else:  # out = A + weight x S
-                (self._kg.paint_add if self.numba else paint_add)(work, a_lut, s, weight, out)
-            s = out
         if s is None:
             out[...] = 0.0
         elif s is not out:
@@ -374,7 +356,7 @@ class DTDMIEngine:
             h, w = bgr.shape[:2]
             work = cv2.resize(bgr, (max(8, w // cfg.downscale), max(8, h // cfg.downscale)),
                               interpolation=cv2.INTER_AREA)
-        work = self.work = np.ascontiguousarray(work)
+        work = np.ascontiguousarray(work)
         shape = (work.shape[0], work.shape[1])
         out_hw = shape if native else (bgr.shape[0], bgr.shape[1])
         if shape != self._shape:
@@ -433,27 +415,6 @@ def scale_compression(normalize: bool, top: float) -> float:
     if not normalize:
         return 1.0
     return 1.0 / top if top > 0 else 1.0
-
-
-def appearance_lut(model: Any, work: np.ndarray, hist: np.ndarray | None
-                   ) -> tuple[np.ndarray, int]:
-    """The appearance model's per-bin back-projection for a frame (``hist``: its sampled colour
-    counts, None: counted here) and the exposure it was taken at
-    (:meth:`..appearance.AppearanceModel.select`)."""
-    hist = sampled_colour_hist(work) if hist is None else hist
-    exposure = model.select(hist)
-    return model.lut(hist, exposure), exposure
-
-
-def sampled_colour_hist(bgr: np.ndarray) -> np.ndarray:
-    """Counts of the colour bins over every 2nd row and column (float64, :data:`.static.NBINS`)."""
-    return np.bincount(quantize_bgr(bgr[::2, ::2]).ravel(), minlength=NBINS).astype(np.float64)
-
-
-def paint_add(bgr: np.ndarray, lut: np.ndarray, add: np.ndarray, weight: float,
-              out: np.ndarray) -> None:
-    """``out = lut[bin(bgr)] + weight x add`` (numpy; :func:`.kernels_general.paint_add`)."""
-    np.add(np.take(lut, quantize_bgr(bgr)), add * np.float32(weight), out=out)
 
 
 def propagate_by_colour(sal: np.ndarray, bgr: np.ndarray, weight: float, kernels: Any,

@@ -348,35 +348,6 @@ def distribution_cue(moments: FloatArray, counts: FloatArray, diag_px: float,
 
 
 
-def pool_colour_bins(values: ArrayLike, bits: int = 4) -> NDArray[np.float64]:
-    """Sum of each colour bin and its 26 neighbours in the (2^bits)^3 histogram grid (field).
-
-    The distribution cue pools a bin's pixels with those of adjacent colours (a box version of
-    Perazzi et al.'s colour-similarity weighting), so a bin that holds a few pixels of a
-    widespread colour (noise on the horizon, a shaded edge) is not taken as compact.
-
-    Parameters
-    ----------
-    values : ndarray of shape (B,) or (B, C), B = 2^(3 bits), bin index ``b << 2 bits | g << bits | r``
-
-    Returns
-    -------
-    ndarray of the same shape
-    """
-    n = 1 << bits
-    v = np.asarray(values, np.float64)
-    grid = v.reshape((n, n, n) + v.shape[1:])
-    for axis in range(3):
-        out = grid.copy()
-        lo = [slice(None)] * grid.ndim
-        hi = [slice(None)] * grid.ndim
-        lo[axis], hi[axis] = slice(0, n - 1), slice(1, n)
-        out[tuple(lo)] += grid[tuple(hi)]
-        out[tuple(hi)] += grid[tuple(lo)]
-        grid = out
-    return grid.reshape(v.shape)
-
-
 def block_contrast_cue(features: FloatArray, radius_px: int, surround: float) -> FloatArray:
     """Eq. (2) of [1] read as the text describes it, per pixel block (aerial preset).
 

@@ -1,15 +1,11 @@
-"""Fused numba kernels of the engine's general path (the ``aerial`` preset, an example image
-of the target) and of the following refinement: the same results as the plain functions they
-replace (:func:`.equations_static.block_contrast_cue` of :func:`.maps.lab_features`,
-:func:`.refine.spotlit_saliency`, the appearance blend), within float rounding (tested).
+"""Fused numba kernels of the engine's general path (the ``aerial`` preset): the same results
+as the plain functions they replace (:func:`.equations_static.block_contrast_cue` of
+:func:`.maps.lab_features`), within float rounding (tested).
 
 - :func:`block_contrast` reads both box means of the block contrast cue from one integral
   image of the reflect-padded 8-bit L*a*b* frame and writes the weighted distance in the same
   pass (OpenCV's two float box filters, the subtraction, ``cv2.transform`` and ``cv2.sqrt``
-  were five passes over a three-channel float plane);
-- :func:`paint_add` paints a colour look-up and adds a scaled plane in one pass;
-- :func:`spotlight` multiplies the map by ``(1 - a) + a G`` with the separable Gaussian ``G``
-  computed from its row and column factors, without the full-size weight plane.
+  were five passes over a three-channel float plane.
 
 Serial, ``cache=True`` like :mod:`.kernels`.
 """
@@ -66,33 +62,3 @@ def block_contrast(ii: I32, pad: int, r: int, big: int, wl2: float, scale: float
                 orow[j] += v
             else:
                 orow[j] = v
-
-
-@njit(cache=True, nogil=True, fastmath=True)
-def paint_add(bgr: U8, lut: F32, add: F32, weight: float, out: F32) -> None:  # pragma: no cover
-    """``out = lut[bin(bgr)] + weight x add`` (colour bins of :func:`.static.quantize_bgr`);
-    ``out`` may be ``add``."""
-    h, w = out.shape
-    wt = np.float32(weight)
-    for r in range(h):
-        px = bgr[r]
-        arow = add[r]
-        orow = out[r]
-        for c in range(w):
-            i = ((np.uint16(px[c, 0]) >> 4) << 8) | ((np.uint16(px[c, 1]) >> 4) << 4) \
-                | (np.uint16(px[c, 2]) >> 4)
-            orow[c] = lut[i] + wt * arow[c]
-
-
-@njit(cache=True, nogil=True)
-def spotlight(sal: F32, g_rows: F32, g_cols: F32, keep: float, out: F32) -> None:  # pragma: no cover
-    """``out = sal x (g_rows[v] x g_cols[u] + keep)``, the float32 operations of
-    :func:`.refine.spotlit_saliency` in its order (``g_rows`` already times the strength)."""
-    h, w = sal.shape
-    k = np.float32(keep)
-    for r in range(h):
-        gr = g_rows[r]
-        srow = sal[r]
-        orow = out[r]
-        for c in range(w):
-            orow[c] = srow[c] * (gr * g_cols[c] + k)

@@ -11,11 +11,6 @@ Pure functions; the engine (:mod:`.engine`) and the plugin (:mod:`.detector`) ap
   (e.g. Perazzi et al.'s element uniqueness / distribution filtering; Cheng et al.'s
   histogram-based smoothing). ``Sbar`` is a mean of S, so ``S'`` stays in [0, 1] and keeps
   DTDMI's absolute scale: a dark map stays dark.
-- **Following the target** (``appearance_track_weight``, with an example image of the target):
-  the map is attenuated away from the previous frame's best detection,
-  ``S' = S x ((1 - a) + a G)`` with ``G`` a Gaussian of ``sigma`` around that detection's
-  centre. It uses past frames only (the detector's state); far from the previous detection a
-  region needs ``1 / (1 - a)`` times the saliency to win.
 
 References
 ----------
@@ -77,53 +72,3 @@ def propagated_saliency(sal: NDArray[np.floating], painted: NDArray[np.floating]
                          f"{p.shape}")
     out: NDArray[np.float32] = s * np.float32(1.0 - weight) + p * np.float32(weight)
     return out
-
-
-def spotlit_saliency(sal: NDArray[np.floating], centre_px: tuple[float, float],
-                     sigma_px: float, strength: float) -> NDArray[np.float32]:
-    """The map attenuated away from ``centre_px``: ``sal x ((1 - a) + a G)``.
-
-    ``G(u, v) = exp(-((u - u0)^2 + (v - v0)^2) / (2 sigma^2))``, 1 at the centre; ``a`` =
-    ``strength`` in [0, 1] (0 returns ``sal`` unchanged, 1 keeps only the Gaussian window).
-
-    Parameters
-    ----------
-    sal : ndarray of shape (H, W)
-    centre_px : (u, v)
-        Pixel coordinates (docs/conventions.md: u = column, v = row, pixel centres at integers).
-    sigma_px : float
-        > 0.
-    strength : float
-        In [0, 1].
-    """
-    _check_spotlight(sigma_px, strength)
-    s = np.asarray(sal, np.float32)
-    if strength == 0.0:
-        return s.copy()
-    g_rows, g_cols, keep = spotlight_factors(s.shape, centre_px, sigma_px, strength)
-    weight = np.outer(g_rows, g_cols)
-    weight += keep
-    out: NDArray[np.float32] = s * weight
-    return out
-
-
-def spotlight_factors(shape: tuple[int, ...], centre_px: tuple[float, float], sigma_px: float,
-                      strength: float) -> tuple[NDArray[np.float32], NDArray[np.float32],
-                                                np.float32]:
-    """The separable factors of :func:`spotlit_saliency`'s weight ``(1 - a) + a G``:
-    ``(a x G_rows, G_cols, 1 - a)`` (float32), so that weight[v, u] = ``a G_rows[v] G_cols[u] +
-    (1 - a)``."""
-    _check_spotlight(sigma_px, strength)
-    h, w = shape[0], shape[1]
-    u0, v0 = centre_px
-    k = -0.5 / (sigma_px * sigma_px)
-    g_cols = np.exp(k * (np.arange(w) - u0) ** 2).astype(np.float32)
-    g_rows = np.exp(k * (np.arange(h) - v0) ** 2).astype(np.float32)
-    return g_rows * np.float32(strength), g_cols, np.float32(1.0 - strength)
-
-
-def _check_spotlight(sigma_px: float, strength: float) -> None:
-    if not 0.0 <= strength <= 1.0:
-        raise ValueError(f"strength: must be in [0, 1], got {strength}")
-    if not sigma_px > 0:
-        raise ValueError(f"sigma_px: must be > 0, got {sigma_px}")

@@ -22,8 +22,7 @@ import eaglemission.detectors.dtdmi.equations_static as eq
 import numpy as np
 from numpy.typing import NDArray
 
-BITS = 4
-NBINS = 1 << (3 * BITS)
+from eaglemission.perception.colour_bins import BITS, NBINS, pool_colour_bins
 
 
 def _bin_colours_bgr() -> NDArray[np.float64]:
@@ -55,12 +54,6 @@ def bin_features(colour_space: str, luminance_weight: float = 1.0) -> NDArray[np
     if colour_space == "log_lms":
         return np.asarray(np.log10(np.maximum(lms, 1e-3)), np.float64)
     return lms
-
-
-def quantize_bgr(image: NDArray[np.uint8]) -> NDArray[np.uint16]:
-    """(H, W) histogram bin index ``b >> 4 << 8 | g >> 4 << 4 | r >> 4`` of each pixel."""
-    q = (image >> (8 - BITS)).astype(np.uint16)
-    return np.asarray((q[:, :, 0] << (2 * BITS)) | (q[:, :, 1] << BITS) | q[:, :, 2], np.uint16)
 
 
 def weighted_kmeans(
@@ -249,6 +242,6 @@ class ClusterStatic:
         pooled_mom: NDArray[np.floating] = mom
         pooled_hist: NDArray[np.floating] = hist
         if self.p.spread_pool:
-            pooled_mom, pooled_hist = eq.pool_colour_bins(mom), eq.pool_colour_bins(hist)
+            pooled_mom, pooled_hist = pool_colour_bins(mom), pool_colour_bins(hist)
         spatial = eq.distribution_cue(pooled_mom, pooled_hist, diag, self.p.spread_sigma_frac)
         return eq.static_saliency(spatial, contrast).astype(np.float32)  # Eq. (6)

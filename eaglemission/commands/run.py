@@ -173,17 +173,14 @@ def _run(args: argparse.Namespace) -> int:
 
     console = Console()
     err = Console(stderr=True)
-    warnings: list[str] = []
     try:
-        cfg = load_config(args.config, warnings=warnings)
+        cfg = load_config(args.config)
         problems = run_checks(cfg)
         if problems:
             raise ConfigError(problems, source=args.config or "<embedded>")
     except ConfigError as exc:
         _print(err, f"invalid: {exc}")
         return run.EXIT_CONFIG
-    for w in warnings:
-        _print(err, f"warning: {w}")
     data = cfg.model_dump()
     if args.detector:
         data["detector"] = {"type": args.detector, "params": {}}

@@ -16,11 +16,8 @@ def _add(p: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     from eaglemission.commands import checks
 
-    warnings: list[str] = []
     try:
-        cfg = load_config(args.config, check_plugins=False, warnings=warnings)
-        for w in warnings:
-            print(f"warning: {w}", file=sys.stderr)
+        cfg = load_config(args.config, check_plugins=False)
         problems = plugin_problems(cfg) + checks.run_checks(cfg)
         if problems:
             raise ConfigError(problems, source=args.config or "<embedded>")

@@ -8,8 +8,6 @@ plugin's own ``Config`` model, found through the registry.
 
 from __future__ import annotations
 
-import copy
-import logging
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -22,6 +20,7 @@ from eaglemission import registry
 from eaglemission.config.errors import format_validation_error
 from eaglemission.errors import ConfigError, PluginError
 from eaglemission.geometry import CameraModel, CameraMount
+from eaglemission.perception.appearance import AppearanceConfig
 
 DEFAULT_CONFIG = "sitl_synthetic.yaml"
 
@@ -125,9 +124,10 @@ class EstimatorsSection(StrictModel):
 
 class TargetConfig(StrictModel):
     """The target is a box; its top face (length x width) is the PnP model. ``length_m`` runs
-    along the target's heading. ``appearance_image`` (optional) is an example image of the
-    target (a tight crop, or a photo on a plain background), relative to the mission file;
-    detectors that use one get it as their ``appearance`` (docs/detectors.md)."""
+    along the target's heading. ``color_bgr`` (optional): its colour. ``appearance_image``
+    (optional): an example image of the target (a tight crop, or a photo on a plain
+    background), relative to the mission file. What perception makes of either is the
+    ``appearance`` section (docs/detectors.md)."""
 
     length_m: PosFloat
     width_m: PosFloat
@@ -166,12 +166,6 @@ class MissionConfig(StrictModel):
     route: Annotated[list[RoutePoint], Field(min_length=1)]
     cruise_altitude_m: PosFloat = 6.0
     cruise_speed_mps: PosFloat = 2.0
-
-
-MOVED_TO_MISSION_PARAMS = ("approach_speed_mps", "confirm_frames", "grasp_distance_m",
-                           "grasp_tolerance_m", "grasp_stable_frames", "standoff", "timeouts",
-                           "on_target_lost", "on_done", "grasp_action", "setpoint_rate_hz")
-"""Approach-only keys that moved from ``mission`` to ``mission.params`` (read for one release)."""
 
 
 class GeofenceConfig(StrictModel):
@@ -288,10 +282,9 @@ class MissionFile(StrictModel):
     vehicle: PluginSection
     cameras: CamerasSection
     detector: DetectorSection
-    tracker: PluginSection | None = Field(
-        default_factory=lambda: PluginSection(type="colour_blob"))
-    """Finds the target by its appearance (colour) at close range and checks detections'
-    colour; ``null``: none."""
+    appearance: AppearanceConfig = Field(default_factory=AppearanceConfig)
+    """How the target's appearance (``target.color_bgr``, ``target.appearance_image``) is
+    modelled, and the appearance prior stage after the detector."""
     estimators: EstimatorsSection
     target: TargetConfig
     tool_point_m: XYZm = (0.0, 0.0, 0.3)
@@ -368,106 +361,9 @@ def read_config_text(path: str | Path) -> str:
                           source=str(p)) from None
 
 
-def migrate_moved_keys(data: Any) -> tuple[Any, list[str]]:
-    """Keys that moved, still read for one release: returns a migrated COPY of the parsed
-    document and one ``old: moved to new`` warning per moved key (the input is not changed)."""
-    if not isinstance(data, dict):
-        return data, []
-    warnings: list[str] = []
-    mission = data.get("mission")
-    params = mission.get("params") if isinstance(mission, dict) else None
-    detector = data.get("detector")
-    if isinstance(mission, dict) and any(k in mission for k in MOVED_TO_MISSION_PARAMS):
-        data = copy.deepcopy(data)
-        mission = data["mission"]
-        params = mission.setdefault("params", {})
-        if isinstance(params, dict):
-            for key in MOVED_TO_MISSION_PARAMS:
-                if key in mission:
-                    value = mission.pop(key)
-                    if key in params and params[key] != value:
-                        raise ConfigError(
-                            f"mission.{key}: given both here ({value!r}) and as "
-                            f"mission.params.{key} ({params[key]!r}); keep only the latter")
-                    params[key] = value
-                    warnings.append(f"mission.{key}: moved to mission.params.{key} (read for "
-                                    "this release; write it there)")
-    if "simulation" in data:
-        data = copy.deepcopy(data)
-        simulation = data.pop("simulation")
-        if "world" in data:
-            raise ConfigError("simulation: moved to world.params (world.type: synthetic); "
-                              "given both `simulation` and `world`: keep only `world`")
-        if simulation is not None:
-            data["world"] = {"type": "synthetic", "params": simulation}
-        warnings.append("simulation: moved to world.params with world.type: synthetic (read "
-                        "for this release; write it there)")
-        mission = data.get("mission")
-        params = mission.get("params") if isinstance(mission, dict) else None
-        detector = data.get("detector")
-    if not isinstance(params, dict) or not isinstance(detector, dict):
-        return data, warnings
-    moved = [k for k in ("detector_downscale", "narrow_threshold", "colour_tolerance")
-             if k in params]
-    if not moved:
-        return data, warnings
-    data = copy.deepcopy(data)
-    params = data["mission"]["params"]
-    det = data["detector"]
-    det_params = det.setdefault("params", {})
-    if "detector_downscale" in params:
-        value = params.pop("detector_downscale")
-        if isinstance(det_params, dict) and "downscale" not in det_params and \
-                _detector_has(det.get("type"), "downscale"):
-            det_params["downscale"] = value
-        warnings.append("mission.params.detector_downscale: moved to detector.params.downscale "
-                        "(read for this release; write it there)")
-    if "narrow_threshold" in params:
-        value = params.pop("narrow_threshold")
-        if value != "config" and _detector_has(det.get("type"), "regions"):
-            per = det.setdefault("per_camera", {})
-            narrow = per.setdefault("narrow", {}) if isinstance(per, dict) else {}
-            if isinstance(narrow, dict):
-                regions = narrow.setdefault("regions", {})
-                if isinstance(regions, dict):
-                    regions.setdefault("threshold", value)
-        warnings.append("mission.params.narrow_threshold: moved to "
-                        "detector.per_camera.narrow.regions.threshold (read for this release; "
-                        "write it there)")
-    if "colour_tolerance" in params:
-        value = params.pop("colour_tolerance")
-        tracker = data.setdefault("tracker", {"type": "colour_blob", "params": {}})
-        if isinstance(tracker, dict):
-            tp = tracker.setdefault("params", {})
-            if isinstance(tp, dict):
-                tp.setdefault("tolerance", value)
-        warnings.append("mission.params.colour_tolerance: moved to tracker.params.tolerance "
-                        "(read for this release; write it there)")
-    return data, warnings
-
-
-def _detector_has(name: Any, field_name: str) -> bool:
-    try:
-        model = registry.config_model("detectors", str(name))
-    except PluginError:
-        return False
-    return field_name in model.model_fields
-
-
-def validate_mapping(data: Any, *, source: str = "<config>", check_plugins: bool = True,
-                     warnings: list[str] | None = None) -> MissionFile:
-    """Validate a parsed YAML document; raise :class:`ConfigError` listing every problem.
-    Moved keys are migrated (:func:`migrate_moved_keys`); their warnings go to ``warnings``
-    when given, else to the log."""
-    try:
-        data, moved = migrate_moved_keys(data)
-    except ConfigError as exc:
-        raise ConfigError(exc.problems, source=source) from None
-    if warnings is not None:
-        warnings.extend(moved)
-    else:
-        for w in moved:
-            logging.getLogger(__name__).warning("%s: %s", source, w)
+def validate_mapping(data: Any, *, source: str = "<config>",
+                     check_plugins: bool = True) -> MissionFile:
+    """Validate a parsed YAML document; raise :class:`ConfigError` listing every problem."""
     if data is None:
         raise ConfigError("empty file: a mission needs the sections " + ", ".join(
             f for f, info in MissionFile.model_fields.items() if info.is_required()), source=source)
@@ -505,8 +401,6 @@ def plugin_sections(cfg: MissionFile) -> list[tuple[str, str, str, dict[str, Any
         ("estimators", "estimators.fine", cfg.estimators.fine.type, cfg.estimators.fine.params),
         *([("fitters", "estimators.fitter", cfg.estimators.fitter.type,
             cfg.estimators.fitter.params)] if cfg.estimators.fitter is not None else []),
-        *([("trackers", "tracker", cfg.tracker.type, cfg.tracker.params)]
-          if cfg.tracker is not None else []),
         ("missions", "mission", cfg.mission.type, cfg.mission.params),
         *([("worlds", "world", cfg.world.type, cfg.world.params)]
           if cfg.world is not None else []),
@@ -555,10 +449,9 @@ def plugin_problems(cfg: MissionFile) -> list[str]:
     return problems
 
 
-def load_config(path: str | Path | None = None, *, check_plugins: bool = True,
-                warnings: list[str] | None = None) -> MissionFile:
+def load_config(path: str | Path | None = None, *, check_plugins: bool = True) -> MissionFile:
     """Load and validate a mission file; ``None`` loads the embedded default
-    (``configs/sitl_synthetic.yaml``). Warnings (moved keys) go to ``warnings`` when given."""
+    (``configs/sitl_synthetic.yaml``)."""
     if path is None:
         text = resources.files("eaglemission.configs").joinpath(DEFAULT_CONFIG).read_text("utf-8")
         source = f"<embedded {DEFAULT_CONFIG}>"
@@ -566,7 +459,7 @@ def load_config(path: str | Path | None = None, *, check_plugins: bool = True,
         text = read_config_text(path)
         source = str(path)
     cfg = validate_mapping(parse_yaml(text, source=source), source=source,
-                           check_plugins=check_plugins, warnings=warnings)
+                           check_plugins=check_plugins)
     base = Path(path).resolve().parent if path is not None else None
     return resolve_relative_paths(cfg, base)
 

@@ -30,9 +30,6 @@ from eaglemission import registry
 from eaglemission.clock import Clock
 from eaglemission.config import MissionFile, merge_params
 from eaglemission.config.models import SECTIONS
-from eaglemission.errors import (
-    ConfigError,
-)
 from eaglemission.flight.context import WORLD, SharedContext
 from eaglemission.interfaces import (
     FlightParts,
@@ -40,10 +37,10 @@ from eaglemission.interfaces import (
     Judge,
     PlaneFitter,
     Section,
-    Tracker,
     World,
 )
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+from eaglemission.perception.appearance import TargetAppearance
 from eaglemission.recording.vehicle_tap import VehicleTap
 from eaglemission.safety.autopilot_guard import AutopilotGuard
 from eaglemission.safety.envelope import SafeVehicle
@@ -131,7 +128,7 @@ class Assembly:
     pose_source: PoseSource
     truth: GroundTruth | None = None
     fitter: PlaneFitter | None = None
-    tracker: Tracker | None = None
+    appearance: TargetAppearance | None = None
     guard: AutopilotGuard | None = None
     sections: list[Section] = field(default_factory=list)
     """The section plugins of the mission file's extra sections (``faults``), attached."""
@@ -139,7 +136,7 @@ class Assembly:
     def parts(self, *, realtime: bool) -> FlightParts:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
                            cameras=self.cameras, detectors=self.detectors, coarse=self.coarse,
-                           fine=self.fine, fitter=self.fitter, tracker=self.tracker,
+                           fine=self.fine, fitter=self.fitter, appearance=self.appearance,
                            judge=self.judge(), realtime=realtime, autopilot_guard=self.guard)
 
     def judge(self) -> Judge | None:
@@ -153,17 +150,23 @@ class Assembly:
         return judge
 
 
-def load_appearance_image(cfg: MissionFile) -> Any:
-    """The mission's ``target.appearance_image`` as a BGR array (None without one)."""
-    path = getattr(cfg.target, "appearance_image", None)
-    if not path:
+def target_appearance(cfg: MissionFile) -> TargetAppearance | None:
+    """The target's appearance from ``cfg.target`` and ``cfg.appearance`` (the example image
+    read from disk), built once per flight; None when the target section gives neither a
+    colour nor an image."""
+    if cfg.target.color_bgr is None and not cfg.target.appearance_image:
         return None
-    import cv2
+    return TargetAppearance.of_target(cfg.target, cfg.appearance)
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ConfigError(f"target.appearance_image: cannot read {str(path)!r} as an image")
-    return img
+
+def build_detector(cfg: MissionFile, camera_id: str,
+                   appearance: TargetAppearance | None) -> Any:
+    """One camera's detector (``detector.type`` with :func:`detector_params`), followed by the
+    appearance prior (``appearance.prior``) when the target has an example image."""
+    detector = registry.load("detectors", cfg.detector.type, detector_params(cfg, camera_id),
+                             camera_id=camera_id)
+    return detector if appearance is None else appearance.with_prior(detector,
+                                                                       cfg.appearance.prior)
 
 
 def detector_params(cfg: MissionFile, camera_id: str) -> dict[str, Any]:
@@ -245,10 +248,8 @@ def assemble(cfg: MissionFile, clock: Clock, *,
             "cameras", section.type, section.params, model=section.to_model(cid), clock=clock,
             camera_id=cid, target=cfg.target, simulation=simulation, safety=cfg.safety,
             shared=shared, pose_source=pose)
-    appearance = load_appearance_image(cfg)
-    detectors = {cid: registry.load("detectors", cfg.detector.type, detector_params(cfg, cid),
-                                    camera_id=cid, appearance=appearance)
-                 for cid in CAMERAS}
+    appearance = target_appearance(cfg)
+    detectors = {cid: build_detector(cfg, cid, appearance) for cid in CAMERAS}
     coarse = registry.load("estimators", cfg.estimators.coarse.type,
                            cfg.estimators.coarse.params, target=cfg.target)
     fine = registry.load("estimators", cfg.estimators.fine.type, cfg.estimators.fine.params,
@@ -256,11 +257,8 @@ def assemble(cfg: MissionFile, clock: Clock, *,
     fs = cfg.estimators.fitter
     fitter = None if fs is None else registry.load("fitters", fs.type, fs.params,
                                                    target=cfg.target)
-    ts = cfg.tracker
-    tracker = None if ts is None else registry.load("trackers", ts.type, ts.params,
-                                                    target=cfg.target)
     asm = Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
-                   fitter=fitter, tracker=tracker, sections=sections)
+                   fitter=fitter, appearance=appearance, sections=sections)
     for section in sections:
         section.attach(asm)  # e.g. wraps the parts injected faults live in
     return asm

@@ -13,11 +13,10 @@ from eaglemission.interfaces.mission import (
     MissionOutcome,
 )
 from eaglemission.interfaces.section import Section
-from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 from eaglemission.interfaces.world import World
 
 __all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "FlightRecorder",
            "GroundTruth", "Judge", "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter",
-           "Section", "Tracker", "Vehicle", "Verdict", "World"]
+           "Section", "Vehicle", "Verdict", "World"]

@@ -13,11 +13,11 @@ from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import Estimator
 from eaglemission.interfaces.fitter import PlaneFitter
 from eaglemission.interfaces.judge import Judge
-from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.vehicle import Vehicle
 
 if TYPE_CHECKING:
     from eaglemission.config import MissionFile
+    from eaglemission.perception.appearance import TargetAppearance
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,8 @@ class FlightParts:
     coarse: Estimator
     fine: Estimator
     fitter: PlaneFitter | None = None
-    tracker: Tracker | None = None
+    appearance: TargetAppearance | None = None
+    """The target's appearance, modelled once (None: nothing known of it)."""
     judge: Judge | None = None
     realtime: bool = False
     autopilot_guard: Any = None

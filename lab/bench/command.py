@@ -14,7 +14,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from eaglemission.detectors.cli_params import UsageError, parse_detector_specs
+from eaglemission.detectors.cli_params import UsageError, build_spec, parse_detector_specs
 from eaglemission.detectors.inputs import read_target_image
 from eaglemission.lab.bench.data import find_sequences, first_frame_crop
 from eaglemission.lab.bench.report import (
@@ -25,7 +25,6 @@ from eaglemission.lab.bench.report import (
 )
 from eaglemission.lab.bench.runs import DetectorRun, run_detector_on_sequence
 
-from eaglemission import registry
 from eaglemission.commands import Command
 
 
@@ -96,9 +95,9 @@ def run_bench(args: argparse.Namespace) -> int:
         fixed_image = read_target_image(Path(args.target_image))
     crops = {s.name: first_frame_crop(s) for s in sequences} if first_frame else {}
     specs = parse_detector_specs(args.detectors, args.params)
-    context = {"appearance": fixed_image} if fixed_image is not None else {}
-    detectors = [registry.load("detectors", s.name, s.params, **context)
-                 for s in specs]  # fail early
+    sample = fixed_image if fixed_image is not None else (
+        next(iter(crops.values()))[1] if crops else None)
+    detectors = [build_spec(s, sample) for s in specs]  # fail early
     console = Console(stderr=True)
     runs = [DetectorRun(s) for s in specs]
     total = sum(len(s.frames) for s in sequences) * len(specs)
@@ -114,7 +113,7 @@ def run_bench(args: argparse.Namespace) -> int:
                 if first_frame:
                     i0, crop = crops[seq.name]
                     first_scored = max(first_scored, i0 + 1)
-                    det = registry.load("detectors", spec.name, spec.params, appearance=crop)
+                    det = build_spec(spec, crop)
                 curves, boxes = run_detector_on_sequence(
                     det, seq, args.fps, run, save, on_frame=lambda: progress.advance(task),
                     first_scored=first_scored)

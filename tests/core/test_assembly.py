@@ -16,7 +16,6 @@ import pytest
 from eaglemission import registry
 from eaglemission.clock import ManualClock
 from eaglemission.config import MissionFile, load_config
-from eaglemission.errors import ConfigError
 from eaglemission.flight import assembly, run
 from eaglemission.flight.assembly import assemble
 from eaglemission.flight.run import FlightOptions, exit_code_for, fly_sync
@@ -126,36 +125,18 @@ def test_the_vehicle_gets_its_params_and_the_envelope(cfg: MissionFile) -> None:
 
 
 def test_one_detector_per_camera_with_per_camera_overrides(cfg: MissionFile) -> None:
+    """Without the appearance prior the detector's own regions find the target, and a camera's
+    ``per_camera`` overrides reach its detector alone."""
     over = variant(cfg, detector={"type": "dtdmi", "params": {"preset": "field",
                                                               "downscale": 2},
-                                  "per_camera": {"narrow": {"regions": {"threshold": "otsu"}}}})
+                                  "per_camera": {"narrow": {"regions": {"threshold": "otsu"}}}},
+                   appearance={"prior": None})
     asm = assemble(over, ManualClock())
     wide, narrow = asm.detectors["wide"], asm.detectors["narrow"]
     assert wide is not narrow
     assert narrow.config.regions.threshold == "otsu"
     assert wide.config.regions.threshold != "otsu"
     assert wide.config.downscale == narrow.config.downscale == 2
-
-
-def test_the_targets_example_image_reaches_every_detector(cfg: MissionFile,
-                                                          tmp_path: Path) -> None:
-    """``target.appearance_image`` is read once and handed to both cameras' detectors as
-    their ``appearance``; an unreadable file is refused naming the key."""
-    import cv2
-    import numpy as np
-
-    img = np.zeros((24, 40, 3), np.uint8)
-    img[4:20, 6:34] = (30, 40, 210)
-    cv2.imwrite(str(tmp_path / "box.png"), img)
-    with_image = variant(cfg, target={"appearance_image": str(tmp_path / "box.png")},
-                         detector={"type": "dtdmi", "params": {"preset": "field"}})
-    asm = assemble(with_image, ManualClock())
-    for cid in ("wide", "narrow"):
-        assert np.array_equal(asm.detectors[cid].appearance, img), cid
-    (tmp_path / "bad.png").write_bytes(b"not an image")
-    bad = variant(cfg, target={"appearance_image": str(tmp_path / "bad.png")})
-    with pytest.raises(ConfigError, match="target.appearance_image: cannot read"):
-        assemble(bad, ManualClock())
 
 
 def test_the_mission_is_loaded_by_its_type(cfg: MissionFile, third_party: Path) -> None:

@@ -146,41 +146,6 @@ def test_malformed_mission_params_name_their_path(path: str, value: Any, expecte
     assert expected in str(exc.value), str(exc.value)
 
 
-def test_moved_mission_key_is_read_with_a_warning_and_conflicts_are_refused() -> None:
-    data = shipped_data()
-    value = data["mission"]["params"].pop("grasp_distance_m", 0.5)
-    data["mission"]["grasp_distance_m"] = value
-    warnings: list[str] = []
-    cfg = validate_mapping(data, warnings=warnings)
-    assert cfg.mission.params["grasp_distance_m"] == value
-    assert any("mission.grasp_distance_m: moved to mission.params.grasp_distance_m" in w
-               for w in warnings)
-    data["mission"]["params"]["grasp_distance_m"] = value + 0.1
-    with pytest.raises(ConfigError, match="given both here"):
-        validate_mapping(data)
-    data["mission"]["params"].pop("grasp_distance_m")
-    data["mission"]["grasp_distance_m"] = 5
-    with pytest.raises(ConfigError, match="mission.params.grasp_distance_m: must be <= 2"):
-        validate_mapping(data)
-
-
-def test_old_simulation_section_is_read_as_the_synthetic_world_with_a_warning() -> None:
-    data = shipped_data()
-    world = data.pop("world")
-    data["simulation"] = world["params"]
-    warnings: list[str] = []
-    cfg = validate_mapping(data, warnings=warnings)
-    assert cfg.world is not None and cfg.world.type == "synthetic"
-    assert cfg.world.params == world["params"]
-    assert any(w.startswith("simulation: moved to world.params") for w in warnings), warnings
-    data["simulation"]["mount_error_deg"] = 45  # errors name the new place
-    with pytest.raises(ConfigError, match="world.params.mount_error_deg: must be <= 10"):
-        validate_mapping(data)
-    data["world"] = world
-    with pytest.raises(ConfigError, match="keep only `world`"):
-        validate_mapping(data)
-
-
 def test_every_error_is_reported_at_once() -> None:
     data = mutate(shipped_data(), "mission.cruise_altitude_m", -5)
     data = mutate(data, "target.width_m", 0)
@@ -355,26 +320,6 @@ def test_validate_cli_refuses_a_resolution_that_disagrees_with_the_calibration(
             "(1280x960)") in r.stderr
 
 
-def test_moved_mission_keys_are_read_with_a_warning(tmp_path: Path) -> None:
-    data = shipped_data()
-    data["detector"]["params"] = {"preset": "field"}
-    data["mission"]["params"].update(detector_downscale=3, narrow_threshold="otsu")
-    f = tmp_path / "m.yaml"
-    f.write_text(yaml.safe_dump(data))
-    warnings: list[str] = []
-    cfg = load_config(f, warnings=warnings)
-    assert cfg.detector.params["downscale"] == 3
-    assert cfg.detector.per_camera["narrow"]["regions"]["threshold"] == "otsu"
-    assert "detector_downscale" not in cfg.mission.params
-    assert any("moved to detector.params.downscale" in w for w in warnings)
-    assert any("moved to detector.per_camera.narrow.regions.threshold" in w for w in warnings)
-    r = run_cli("validate", str(f))
-    assert r.returncode == 0, r.stderr
-    assert "warning: mission.params.detector_downscale: moved to detector.params.downscale" \
-        in r.stderr
-    assert data["mission"]["params"]["detector_downscale"] == 3  # the input is not changed
-
-
 def test_validate_cli_embedded_default() -> None:
     r = run_cli("validate")
     assert r.returncode == 0, r.stderr
@@ -410,3 +355,15 @@ def test_calibration_paths_resolve_relative_to_the_mission_file(tmp_path: Path) 
     cfg = load_config(f, check_plugins=False)
     with pytest.raises(ConfigError, match="calibration file not found"):
         cfg.cameras.wide.to_model("wide")
+
+
+def test_keys_of_an_older_layout_are_refused_with_their_path() -> None:
+    """No migration before 1.0: a key in an older place is an unknown key, named."""
+    data = shipped_data()
+    data["mission"]["grasp_distance_m"] = 0.2
+    with pytest.raises(ConfigError, match=r"mission\.grasp_distance_m"):
+        validate_mapping(data)
+    data = shipped_data()
+    data["simulation"] = data.pop("world")["params"]
+    with pytest.raises(ConfigError, match="simulation"):
+        validate_mapping(data)

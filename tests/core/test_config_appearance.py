@@ -1,4 +1,4 @@
-"""``target.appearance_image`` resolves relative to the mission file (issue 14)."""
+"""``target.appearance_image`` resolves relative to the mission file."""
 
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ def test_missing_kernel_is_none_and_loading_is_cached() -> None:
 @pytest.mark.parametrize("module,loader", [
     ("eaglemission.estimators.rpnp", "_kernel"),
     ("eaglemission.estimators.pnp_refine", "_refine_kernel"),
-    ("eaglemission.detectors.colour_blob", "_colour_kernel"),
+    ("eaglemission.perception.colour", "_colour_kernel"),
 ])
 def test_the_compiled_kernels_load(module: str, loader: str) -> None:
     import importlib

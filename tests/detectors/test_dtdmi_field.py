@@ -144,9 +144,11 @@ def test_pool_colour_bins_sums_the_26_neighbours():
     v = np.zeros(4096)
     corner, far, inner = 0, 4095, (5 << 8) | (5 << 4) | 5
     v[corner], v[far], v[inner] = 1.0, 2.0, 1.0
-    p = eq.pool_colour_bins(v)
+    from eaglemission.perception.colour_bins import pool_colour_bins
+
+    p = pool_colour_bins(v)
     assert p.sum() == 8 * 1.0 + 8 * 2.0 + 27 * 1.0  # corners have 7 neighbours, inner 26
     assert p[(6 << 8) | (6 << 4) | 6] == 1.0 and p[(7 << 8) | (5 << 4) | 5] == 0.0
     assert p[corner] == 1.0 and p[(1 << 8) | (1 << 4) | 1] == 1.0
-    cols = eq.pool_colour_bins(np.stack([v, 2 * v], axis=1))
+    cols = pool_colour_bins(np.stack([v, 2 * v], axis=1))
     np.testing.assert_array_equal(cols[:, 1], 2 * p)

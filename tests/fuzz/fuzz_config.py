@@ -141,7 +141,7 @@ def check_document(data: Any) -> str:
     """Validate a parsed document as ``eaglemission validate`` does; ``valid`` or ``refused``,
     or :class:`FuzzCrash`."""
     try:
-        cfg = validate_mapping(data, source="<fuzz>", check_plugins=False, warnings=[])
+        cfg = validate_mapping(data, source="<fuzz>", check_plugins=False)
         cfg = resolve_relative_paths(cfg, CONFIG_DIR)
         problems = plugin_problems(cfg) + checks.run_checks(cfg)
     except ConfigError as exc:

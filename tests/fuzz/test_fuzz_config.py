@@ -76,7 +76,7 @@ def test_invalid_world_params_are_reported_once_by_the_world_not_by_the_camera()
     fail with pydantic's multi-line dump ("the plugin's check failed: ValidationError ...")."""
     doc = copy.deepcopy(DOCS[CONFIG_FILES.index(CONFIG_FILES[0].with_name("sitl_synthetic.yaml"))])
     doc["world"]["params"]["seed"] = {"seed": 1}
-    cfg = resolve_relative_paths(validate_mapping(doc, check_plugins=False, warnings=[]), None)
+    cfg = resolve_relative_paths(validate_mapping(doc, check_plugins=False), None)
     problems = plugin_problems(cfg) + checks.run_checks(cfg)
     assert problems == ["world.params.seed: must be an integer, got {'seed': 1}"]
 

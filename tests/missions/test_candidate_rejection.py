@@ -89,9 +89,10 @@ def campaign_world(world: dict[str, object], **sections: object) -> MissionFile:
 
 
 @pytest.fixture
-def run_645() -> MissionFile:
-    """World 645 of ``fault_campaign.py --seed 3 --binning 2``: a blue box 0.41 m wide on the
-    route at N 8.6 m is confirmed first; the fine approach's plane fit refuses it every time."""
+def box_of_its_colour_first() -> MissionFile:
+    """A campaign world (``fault_campaign.py --seed 3 --binning 2``) with a box of the target's
+    colour, square (0.41 m) and taller, on the route at N 8.6 m before the target: it is
+    confirmed first, and the fine approach's plane fit refuses it every time."""
     return campaign_world({
         "seed": 1726916654, "target_north_m": 21.656, "target_east_m": -0.770,
         "target_yaw_deg": -178.74, "ground_texture": "snow", "light_gain": 1.28,
@@ -101,12 +102,12 @@ def run_645() -> MissionFile:
             {"kind": "box", "north_m": 32.351, "east_m": -5.634, "size_m": 0.584,
              "height_m": 0.083, "color_bgr": [152, 77, 201]},
             {"kind": "box", "north_m": 8.621, "east_m": 0.782, "size_m": 0.406,
-             "height_m": 0.196, "color_bgr": [41, 85, 230]}]})
+             "height_m": 0.196, "color_bgr": [30, 40, 210]}]})
 
 
 def test_a_distractor_lost_three_times_is_rejected_and_the_target_is_grasped(
-        run_645: MissionFile, tmp_path: Path) -> None:
-    out = run_simulation(run_645, log_path=tmp_path / "run.jsonl")
+        box_of_its_colour_first: MissionFile, tmp_path: Path) -> None:
+    out = run_simulation(box_of_its_colour_first, log_path=tmp_path / "run.jsonl")
     ev = out.evaluation
     texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
     rejected = [t for t in texts if "candidate rejected" in t]

@@ -135,14 +135,15 @@ def test_no_estimator_no_estimate_and_a_refusal_says_why(scene) -> None:
 def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
         scene, paint_at_target, fragment) -> None:
     """Close range, a fine estimate asked: the target colour's region (the real
-    ``colour_blob`` tracker) replaces the detector's region when one centre lies in the other's
-    MBR (one box fit on the region that follows the target's edges); a colour region elsewhere
-    does not replace it. ``fragment``: the detector's region is the lower third of the target
-    (campaign seed 7 run 30: near the grasp pose, a saliency region at the narrow image's
-    bottom border; the colour region's centre lies outside it, and the fragment's fit ended
-    the grasp 8.2 cm off)."""
+    :class:`TargetAppearance`) comes before the detector's region when one centre lies in the
+    other's MBR (one box fit on the region that follows the target's edges); a colour region
+    elsewhere does not. ``fragment``: the detector's region is the lower third of the target,
+    as a saliency region at the narrow image's bottom border near the grasp pose can be; the
+    colour region's centre lies outside it (a fit of the fragment alone ends the grasp
+    centimetres off)."""
     import cv2
-    from eaglemission.detectors.colour_blob import ColourBlobTracker
+
+    from eaglemission.perception.appearance import TargetAppearance
 
     model, target, top, det, state, frame = scene
     image = frame.image.copy()
@@ -159,9 +160,9 @@ def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
         assert not inside_polygon(tuple(poly.mean(axis=0)), det.corners_px)
     cv2.fillPoly(image, [np.round(poly).astype(np.int32)], tuple(int(c) for c in target.color_bgr))
     frame = Frame(image, frame.timestamp_ns, frame.camera_id, frame.seq)
-    tracker = ColourBlobTracker(target=target, camera_id="narrow")
+    appearance = TargetAppearance.of_target(target)
     tools = Tools(OneDetection(det), FixedEstimator((0.0, 0.0, 0.0)),
-                  FixedEstimator((9.0, 9.0, 9.0)), None, tracker)
+                  FixedEstimator((9.0, 9.0, 9.0)), None, appearance)
     p = ApproachConfig(colour_check=False, colour_track=True)
     centre = tuple(float(x) for x in poly.mean(axis=0))
     req = Request(frame, model, state, "fine", centre, True, None, PlaneState(0.0, 0.04))

@@ -8,7 +8,10 @@ import cv2
 import numpy as np
 import pytest
 from eaglemission.detectors.base import SaliencyDetector, validate_image
-from eaglemission.detectors.regions import (
+
+from eaglemission.errors import InputError
+from eaglemission.geometry import order_corners
+from eaglemission.perception.regions import (
     RegionsConfig,
     binarize,
     find_regions,
@@ -16,9 +19,6 @@ from eaglemission.detectors.regions import (
     prior_accepts,
     to_uint8,
 )
-
-from eaglemission.errors import InputError
-from eaglemission.geometry import order_corners
 from eaglemission.types import Frame, TargetPrior
 
 
@@ -228,7 +228,7 @@ def test_resolution_change_resets_state():
 
 
 def test_adaptive_threshold_hand_computed():
-    from eaglemission.detectors.regions import adaptive_threshold
+    from eaglemission.perception.regions import adaptive_threshold
 
     assert adaptive_threshold(200.0, 40, 0.8) == pytest.approx(160.0)
     assert adaptive_threshold(30.0, 40, 0.8) == 40.0  # the floor
@@ -273,7 +273,7 @@ def test_shape_filters_drop_elongated_and_huge_regions():
 def test_regions_of_a_reduced_map_in_frame_pixels(angle_deg):
     """A rectangle found on the map reduced by 2 (area average) and mapped back equals the one
     found on the full map within a frame pixel; sizes, area and the hull follow."""
-    from eaglemission.detectors.regions import reduced_prior, to_frame_pixels
+    from eaglemission.perception.regions import reduced_prior, to_frame_pixels
 
     full = np.zeros((240, 320), np.float32)
     rect = ((161.5, 100.5), (80.0, 40.0), angle_deg)

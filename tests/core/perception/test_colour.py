@@ -1,5 +1,5 @@
-"""The close-range colour region of the target: plugin ``colour_blob``
-(detectors/colour_blob.py)."""
+"""The target's colour region and colour check (eaglemission/perception/colour.py), through
+:class:`~eaglemission.perception.appearance.TargetAppearance`."""
 
 from __future__ import annotations
 
@@ -8,42 +8,37 @@ import math
 import cv2
 import numpy as np
 import pytest
-from eaglemission.detectors.colour_blob import (
-    ColourBlobTracker,
+
+from eaglemission.config import TargetConfig
+from eaglemission.perception.appearance import TargetAppearance
+from eaglemission.perception.colour import (
     _components,
     colour_blob,
     colour_mask_numpy,
 )
-
-from eaglemission import registry
-from eaglemission.config import TargetConfig
 from eaglemission.types import Frame
 
 
-def test_colour_blob_is_the_registered_tracker() -> None:
-    assert registry.get("trackers", "colour_blob") is ColourBlobTracker
-
-
-def test_tracker_without_a_target_colour_is_not_available() -> None:
-    t = ColourBlobTracker(target=TargetConfig(length_m=0.4, width_m=0.25))
-    assert not t.available
+def test_without_a_target_colour_there_is_no_region_and_nothing_to_check() -> None:
+    t = TargetAppearance.of_target(TargetConfig(length_m=0.4, width_m=0.25))
+    assert not t.has_colour and not t.has_model and not t.known
     img = np.zeros((40, 40, 3), np.uint8)
-    assert t.track(Frame(img, 1, "wide", 1), (20.0, 20.0)) is None
+    assert t.colour_region(Frame(img, 1, "wide", 1), (20.0, 20.0)) is None
 
 
-def test_tracker_finds_and_matches_the_target_colour() -> None:
+def test_the_colour_region_is_found_and_matches_the_target_colour() -> None:
     img = np.full((240, 320, 3), (40, 140, 60), np.uint8)  # grass
     cv2.rectangle(img, (150, 100), (190, 130), (30, 40, 210), -1)  # the red box
-    t = ColourBlobTracker(target=TargetConfig(length_m=0.4, width_m=0.25,
-                                              color_bgr=(30, 40, 210)))
+    t = TargetAppearance.of_target(TargetConfig(length_m=0.4, width_m=0.25,
+                                                color_bgr=(30, 40, 210)))
+    assert t.has_colour and not t.has_model
     frame = Frame(img, 1, "narrow", 1)
-    det = t.track(frame, (170.0, 115.0))
+    det = t.colour_region(frame, (170.0, 115.0))
     assert det is not None and det.camera_id == "narrow"
     assert abs(det.center_px[0] - 170) < 2 and abs(det.center_px[1] - 115) < 2
-    assert t.matches(frame, det)
-    other = ColourBlobTracker(target=TargetConfig(length_m=0.4, width_m=0.25,
-                                                  color_bgr=(200, 40, 30)))
-    assert not other.matches(frame, det)
+    assert t.colour_matches(frame, det)
+    other = TargetAppearance(colour_bgr=(200, 40, 30))
+    assert not other.colour_matches(frame, det)
 
 
 def test_colour_blob_finds_the_target_colour_near_the_prediction() -> None:
@@ -88,7 +83,7 @@ def _colour_blob_reference(img, target_bgr, tolerance, near_px, min_area_px=200.
 def test_colour_blob_kernel_and_boundary_rectangle_equal_the_references() -> None:
     """The compiled mask equals the numpy one bit for bit, and the rectangle from the region's
     boundary pixels equals the one from all its pixels, on random scenes and parameters."""
-    from eaglemission.detectors._colour_kernel import colour_mask
+    from eaglemission.perception._colour_kernel import colour_mask
 
     rng = np.random.RandomState(11)
     found = 0

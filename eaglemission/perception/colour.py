@@ -1,11 +1,11 @@
-"""Plugin ``colour_blob`` (role ``trackers``): the target found by its colour (not in the
-paper).
+"""The target found by its colour (not in the paper): the colour part of
+:class:`~eaglemission.perception.appearance.TargetAppearance`.
 
 At a metre the target fills a tenth of the wide image and a rarity-based saliency map (DTDMI's
 ``field`` preset) stops singling it out; its colour still does. :func:`colour_blob` returns the
 connected region of the target's chromaticity nearest a predicted pixel; :func:`colour_matches`
 checks that a detector's region has the target's chromaticity. Both need
-``target.color_bgr``; without it the tracker is not ``available`` and the mission uses neither.
+``target.color_bgr``.
 """
 
 from __future__ import annotations
@@ -15,12 +15,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-from eaglemission.detectors.regions import outline_hull
-from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import order_corners
 from eaglemission.kernels import lazy_kernel
-from eaglemission.types import Detection, Frame
+from eaglemission.perception.regions import outline_hull
+from eaglemission.types import Detection
 
 
 def chromaticity(bgr: Any) -> np.ndarray:
@@ -68,7 +67,7 @@ def colour_mask_numpy(image_bgr: np.ndarray, step: int, target_chroma: np.ndarra
 
 
 # the compiled colour mask (loaded on first use; None: colour_mask_numpy)
-_colour_kernel = lazy_kernel("eaglemission.detectors._colour_kernel", "colour_mask")
+_colour_kernel = lazy_kernel("eaglemission.perception._colour_kernel", "colour_mask")
 
 
 def _components(mask: np.ndarray) -> tuple[int, np.ndarray, tuple[int, int], np.ndarray,
@@ -150,44 +149,6 @@ def colour_blob(image_bgr: np.ndarray, target_bgr: Any, tolerance: float, near_p
                      camera_id=camera_id, hull_px=outline_hull(pts, step / 2.0))
 
 
-class ColourBlobTracker:
-    """Plugin ``colour_blob``: :func:`colour_blob` and :func:`colour_matches` behind the
-    :class:`~eaglemission.interfaces.tracker.Tracker` Protocol."""
-
-    description = "the target's colour region nearest the predicted pixel (needs target.color_bgr)"
-
-    class Config(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-        tolerance: float = Field(0.25, gt=0, le=2, description="L1 chromaticity distance")
-        min_area_px: float = Field(200.0, gt=0, description="smallest region (full-res px)")
-        step: int = Field(2, ge=1, le=8, description="every step-th pixel is tested")
-        min_brightness: float = Field(60.0, ge=0, description="darker pixels (B + G + R) "
-                                      "have no reliable colour")
-
-    def __init__(self, config: Config | None = None, *, target: Any = None,
-                 camera_id: str = "", **_context: Any) -> None:
-        self.config = config or self.Config()
-        self.colour = None if target is None else getattr(target, "color_bgr", None)
-        self.camera_id = camera_id
-        if self.colour is not None:  # compile / load the kernel now, not on the first use
-            colour_blob(np.zeros((8, 8, 3), np.uint8), (1, 1, 1), 0.1, (0, 0))
-
-    @property
-    def available(self) -> bool:
-        return self.colour is not None
-
-    def track(self, frame: Frame, near_px: tuple[float, float]) -> Detection | None:
-        if self.colour is None:
-            return None
-        c = self.config
-        det: Detection | None = colour_blob(frame.image, self.colour, c.tolerance, near_px,
-                                            min_area_px=c.min_area_px, step=c.step,
-                                            min_brightness=c.min_brightness,
-                                            camera_id=frame.camera_id)
-        return det
-
-    def matches(self, frame: Frame, detection: Detection) -> bool:
-        if self.colour is None:
-            return True
-        return colour_matches(frame.image, detection, self.colour, self.config.tolerance)
+def warm_up_colour_kernel() -> None:
+    """Compile (or load from numba's cache) the colour mask's kernel now."""
+    colour_blob(np.zeros((8, 8, 3), np.uint8), (1, 1, 1), 0.1, (0, 0))

@@ -1,11 +1,15 @@
-"""The target's appearance prior: colour model round trip, background weighting, detectors."""
+"""The colour model of the target's example image: round trip, background weighting,
+exposure."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 import pytest
-from eaglemission.detectors.appearance import (
+
+from eaglemission.errors import InputError
+from eaglemission.perception.colour_bins import NBINS, quantize_bgr
+from eaglemission.perception.histogram import (
     AppearanceModel,
     appearance_posterior,
     border_mask,
@@ -13,13 +17,8 @@ from eaglemission.detectors.appearance import (
     kernel_weights,
     region_histogram,
     target_histogram,
+    validate_example_image,
 )
-from eaglemission.detectors.base import validate_appearance
-from eaglemission.detectors.dtdmi.static import NBINS, quantize_bgr
-
-from eaglemission import registry
-from eaglemission.errors import InputError
-from eaglemission.types import Frame
 
 RED = (30, 40, 210)
 BLUE = (200, 90, 20)
@@ -85,49 +84,17 @@ def test_plain_background_photo_is_not_the_model():
     assert uniform[_bin(BLUE)] == pytest.approx(uniform.max())
 
 
-def test_validate_appearance():
-    assert validate_appearance(None) is None
-    grey = validate_appearance(np.zeros((4, 5), np.uint8))
+def test_validate_example_image():
+    grey = validate_example_image(np.zeros((4, 5), np.uint8))
     assert grey.shape == (4, 5, 3)
     with pytest.raises(InputError, match="uint8"):
-        validate_appearance(np.zeros((4, 4, 3), np.float32))
+        validate_example_image(np.zeros((4, 4, 3), np.float32))
     with pytest.raises(InputError, match="shape"):
-        validate_appearance(np.zeros((4, 4, 4), np.uint8))
+        validate_example_image(np.zeros((4, 4, 4), np.uint8))
     with pytest.raises(InputError, match="numpy array"):
-        validate_appearance([[1, 2]])
+        validate_example_image([[1, 2]])
     with pytest.raises(InputError, match="3x3"):
-        validate_appearance(np.zeros((2, 9, 3), np.uint8))
-
-
-@pytest.mark.parametrize("name", ["sr", "ft", "mss", "centre_prior", "cluster_static"])
-def test_plugins_accept_and_ignore_an_appearance(name):
-    det = registry.load("detectors", name, {}, appearance=np.zeros((8, 8, 3), np.uint8),
-                        camera_id="wide")
-    img = np.full((48, 64, 3), 90, np.uint8)
-    det.detect(Frame(img, 1_000_000_000, "wide", 0))
-
-
-def test_dtdmi_with_the_target_image_prefers_the_target_over_a_more_salient_distractor(rng):
-    """A dull brown target and a saturated magenta distractor of the same size on grass: the
-    block contrast alone ranks the distractor first; with the target's example image the target
-    comes first."""
-    params = {"preset": "aerial", "use_dynamic": False}
-    frame = _ground(rng, 240, 320)
-    frame[60:72, 40:60] = (60, 80, 110)
-    frame[160:172, 220:240] = (255, 0, 255)
-    crop = np.full((16, 24, 3), (60, 80, 110), np.uint8)
-    plain = registry.load("detectors", "dtdmi", params)
-    with_image = registry.load("detectors", "dtdmi", params, appearance=crop)
-    r0 = plain.detect(Frame(frame, 1_000_000_000, "w", 0))
-    r1 = with_image.detect(Frame(frame, 1_000_000_000, "w", 0))
-    assert r0.best is not None and r1.best is not None
-    u0, v0 = r0.best.center_px
-    u1, v1 = r1.best.center_px
-    assert 220 <= u0 <= 240 and 160 <= v0 <= 172  # the distractor
-    assert 40 <= u1 <= 60 and 60 <= v1 <= 72  # the target
-    # the image must be a BGR uint8 array
-    with pytest.raises(InputError):
-        registry.load("detectors", "dtdmi", params, appearance=np.zeros((8, 8), np.float64))
+        validate_example_image(np.zeros((2, 9, 3), np.uint8))
 
 
 def test_appearance_model_ignores_a_frame_without_the_colour(rng):
@@ -185,37 +152,3 @@ def test_exposure_stays_at_gain_one_in_the_example_s_light(rng):
     assert spanned.select(counts) == spanned.unit
     assert exposure_gains(1.5)[spanned.unit] == pytest.approx(1.0)
     np.testing.assert_array_equal(spanned.q, spanned.q_exposures[spanned.unit])
-
-
-def test_exposure_span_reaches_the_model_from_the_config():
-    crop = np.full((12, 12, 3), RED, np.uint8)
-    det = registry.load("detectors", "dtdmi", {"preset": "aerial"}, appearance=crop)
-    assert det.engine.appearance.q_exposures.shape == (len(exposure_gains(1.5)), NBINS)
-    det1 = registry.load("detectors", "dtdmi", {"preset": "aerial",
-                                                "appearance_exposure_span": 1.0}, appearance=crop)
-    assert det1.engine.appearance.q_exposures.shape == (1, NBINS)
-    default = registry.load("detectors", "dtdmi", {}, appearance=crop)
-    assert default.engine.appearance.q_exposures.shape == (1, NBINS)
-
-
-def test_with_an_image_the_regions_run_at_the_processing_resolution(rng):
-    """``downscale`` 2: the detector finds its regions on the half-resolution map and reports
-    them in the frame's pixels: the same rectangles as on the full-resolution map it returns."""
-    from eaglemission.detectors.regions import find_regions
-
-    frame = _ground(rng, 480, 640)
-    frame[200:236, 300:360] = RED
-    crop = frame[195:241, 295:365].copy()
-    det = registry.load("detectors", "dtdmi", {"preset": "aerial", "downscale": 2},
-                        appearance=crop)
-    for k in range(2):
-        res = det.detect(Frame(frame, 1_000_000_000 + k * 33_000_000, "w", k))
-    assert res.saliency.shape == (480, 640) and res.best is not None
-    u, v = res.best.center_px
-    assert 300 <= u <= 360 and 200 <= v <= 236
-    r = det.engine.r
-    cfg = det.config.regions.model_copy(update={
-        "peak_fraction": r.appearance_peak_fraction, "adaptive_floor": r.appearance_floor})
-    full, _ = find_regions(res.saliency, cfg)
-    assert full
-    np.testing.assert_allclose(res.best.corners_px, full[0].corners_px, atol=2.0)

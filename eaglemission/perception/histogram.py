@@ -1,10 +1,9 @@
-"""The target's appearance as a prior (beyond the paper): a colour model of an example image.
+"""The colour model of an example image of the target (beyond the paper): the model part of
+:class:`~eaglemission.perception.appearance.TargetAppearance`.
 
-A detector may be given an example image of the target (``appearance``: a BGR uint8 array, a
-tight crop or a photo on a plain background) through its constructor context. This module turns
-it into a colour model on the same 4096 colour bins (4 bits per channel) as the static cue of
-DTDMI (:mod:`eaglemission.detectors.dtdmi.static`), and back-projects it on a frame as a per-bin
-look-up table, so it costs one table per frame and the look-up the static map already does.
+An example image (a BGR uint8 array: a tight crop, or a photo on a plain background) becomes a
+colour model on 4096 colour bins (4 bits per channel, :mod:`.colour_bins`), back-projected on a
+frame as a per-bin look-up table: one table per frame and one look-up per pixel.
 
 1. **Target histogram** ``q``: the example's pixels, each weighted by an Epanechnikov kernel over
    the image (centre 1, edges 0: a tight box holds background at its border) times a background
@@ -41,12 +40,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-from eaglemission.detectors.base import validate_appearance
-from eaglemission.detectors.dtdmi.equations_static import pool_colour_bins
-from eaglemission.detectors.dtdmi.static import NBINS, quantize_bgr
 from numpy.typing import ArrayLike, NDArray
 
 from eaglemission.errors import InputError
+from eaglemission.perception.colour_bins import NBINS, pool_colour_bins, quantize_bgr
 
 #: Fraction of the example's width (height) on each side whose colours count as background.
 BORDER_FRACTION = 0.15
@@ -56,6 +53,26 @@ EXPOSURE_STEP = 1.05
 #: A frame switches the model away from gain 1 only when another gain finds this many times
 #: more of the example's colours in it (:meth:`AppearanceModel.select`).
 EXPOSURE_SWITCH = 1.5
+
+
+def validate_example_image(image: Any) -> NDArray[np.uint8]:
+    """An example image as a contiguous BGR uint8 (H, W, 3) copy; grey (H, W) becomes
+    3-channel; anything else raises :class:`InputError` naming the problem."""
+    if not isinstance(image, np.ndarray):
+        raise InputError(f"appearance image: must be a BGR uint8 numpy array, got "
+                         f"{type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise InputError(f"appearance image: must be uint8 (8-bit BGR or grey), got {image.dtype}")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"appearance image: must be (H, W, 3) BGR or (H, W) grey, got shape "
+                         f"{image.shape}")
+    if image.shape[0] < 3 or image.shape[1] < 3:
+        raise InputError(f"appearance image: must be at least 3x3 pixels, got "
+                         f"{image.shape[1]}x{image.shape[0]}")
+    out: NDArray[np.uint8] = np.ascontiguousarray(image).copy()
+    return out
 
 
 def kernel_weights(height_px: int, width_px: int) -> NDArray[np.float64]:
@@ -202,9 +219,9 @@ class AppearanceModel:
     def from_image(cls, image: Any, *, prior: float = 0.01, pool: bool = True,
                    border_fraction: float = BORDER_FRACTION,
                    exposure_span: float = 1.0) -> AppearanceModel:
-        img = validate_appearance(image)
-        if img is None:
+        if image is None:
             raise InputError("appearance: no image given")
+        img = validate_example_image(image)
         if not 1.0 <= exposure_span <= 4.0:
             raise InputError(f"appearance exposure span: must be in [1, 4], got {exposure_span}")
         return cls(exposure_histograms(img, exposure_span, pool=pool,

@@ -1,4 +1,4 @@
-"""Compiled (numba) chromaticity mask of :func:`~eaglemission.detectors.colour_blob.colour_blob`:
+"""Compiled (numba) chromaticity mask of :func:`~eaglemission.perception.colour.colour_blob`:
 one pass over every ``step``-th pixel of a BGR image, with the numpy path's float32 arithmetic
 in the same order (``colour_mask_numpy``; tests compare them bit for bit)."""
 

@@ -1,0 +1,170 @@
+"""The target's appearance, modelled once from the mission file's ``target`` section and handed
+to every stage that needs it (not in the paper; docs/architecture.md, "Perception").
+
+Two descriptions of one appearance, each from what the target section gives:
+
+- **colour model** of ``target.appearance_image`` (an example photo: a tight crop, or the target
+  on a plain background): a 4096-bin colour histogram over a span of exposure gains
+  (:mod:`.histogram`). The appearance prior stage (:mod:`.prior`) back-projects it on each frame
+  and re-ranks regions by their colour histogram's likeness to it.
+- **chromaticity** of ``target.color_bgr`` (the target's colour, when known): which detections
+  have the target's colour (:meth:`TargetAppearance.colour_matches`, the target choice), the
+  connected region of that colour near a pixel (:meth:`TargetAppearance.colour_region`: the
+  whole silhouette at close range) and its outline (the shape check) (:mod:`.colour`).
+
+Either may be absent; :class:`TargetAppearance` says what it can do (``has_model``,
+``has_colour``) and the stages use what is there.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from eaglemission.errors import ConfigError
+from eaglemission.perception.colour import colour_blob, colour_matches, warm_up_colour_kernel
+from eaglemission.perception.histogram import AppearanceModel, validate_example_image
+from eaglemission.perception.prior import AppearancePrior, PriorConfig
+from eaglemission.types import Detection, Frame
+
+
+class ColourConfig(BaseModel):
+    """The target's colour region and colour check (need ``target.color_bgr``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    tolerance: float = Field(0.25, gt=0, le=2, description=(
+        "largest L1 distance between a pixel's chromaticity (b, g, r) / (b + g + r) and the "
+        "target's"))
+    min_area_px: float = Field(200.0, gt=0, description="smallest colour region (frame px)")
+    step: int = Field(2, ge=1, le=8, description="the colour region tests every step-th pixel")
+    min_brightness: float = Field(60.0, ge=0, description=(
+        "darker pixels (B + G + R) have no reliable colour and never belong to the region"))
+
+
+class ExampleModelConfig(BaseModel):
+    """The colour model of the example image (needs ``target.appearance_image``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    target_fraction: float = Field(0.1, gt=0, le=1, description=(
+        "fraction of the frame the target is expected to cover (the back-projection's prior)"))
+    pool: bool = Field(False, description=(
+        "pool every colour bin with its 26 neighbours (tolerance to shading; false: the 4096 "
+        "bins as they are, finer colour discrimination)"))
+    exposure_span: float = Field(1.5, ge=1, le=4, description=(
+        "the model holds the example's histograms at exposure gains from 1/this to this; each "
+        "frame uses the gain at which the example's colours are most present in it (1: the "
+        "example's colours as they are)"))
+
+
+class AppearanceConfig(BaseModel):
+    """``appearance``: how the target's appearance (``target.color_bgr``,
+    ``target.appearance_image``) is modelled, and the appearance prior stage after the
+    detector."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    colour: ColourConfig = Field(default_factory=ColourConfig)
+    example: ExampleModelConfig = Field(default_factory=ExampleModelConfig)
+    prior: PriorConfig | None = Field(default_factory=PriorConfig, description=(
+        "the appearance prior after the detector, when the target has an example image; "
+        "null: the detector's map alone"))
+
+
+def read_example_image(path: str | Path, *, where: str = "target.appearance_image"
+                       ) -> NDArray[np.uint8]:
+    """The example image at ``path`` (BGR); :class:`ConfigError` naming ``where`` when it
+    cannot be read."""
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ConfigError(f"{where}: cannot read {str(path)!r} as an image")
+    return validate_example_image(np.asarray(img, np.uint8))
+
+
+class TargetAppearance:
+    """What the target looks like: the example image's colour model and/or the target's
+    chromaticity (see the module docstring). Synchronous, I/O-free after construction, safe to
+    share between the cameras' perception threads (nothing in it changes after construction)."""
+
+    def __init__(self, *, image: Any = None, colour_bgr: Any = None,
+                 colour: ColourConfig | None = None,
+                 example: ExampleModelConfig | None = None) -> None:
+        self.colour_config = colour or ColourConfig()
+        self.example_config = example or ExampleModelConfig()
+        self.image = None if image is None else validate_example_image(image)
+        self.model: AppearanceModel | None = None
+        if self.image is not None:
+            e = self.example_config
+            self.model = AppearanceModel.from_image(
+                self.image, prior=e.target_fraction, pool=e.pool, exposure_span=e.exposure_span)
+        self.colour_bgr: tuple[float, float, float] | None = None
+        if colour_bgr is not None:
+            b, g, r = (float(v) for v in colour_bgr)
+            self.colour_bgr = (b, g, r)
+            warm_up_colour_kernel()  # compile / load now, not on the first close view
+
+    @classmethod
+    def of_target(cls, target: Any, config: AppearanceConfig | None = None) -> TargetAppearance:
+        """From a mission file's ``target`` section (its image read from disk) and its
+        ``appearance`` section."""
+        cfg = config or AppearanceConfig()
+        path = getattr(target, "appearance_image", None)
+        image = read_example_image(path) if path else None
+        return cls(image=image, colour_bgr=getattr(target, "color_bgr", None), colour=cfg.colour,
+                   example=cfg.example)
+
+    def with_prior(self, detector: Any, prior: PriorConfig | None) -> Any:
+        """``detector`` followed by the appearance prior (``prior``; None: the detector alone,
+        as without an example image)."""
+        if prior is None or self.model is None:
+            return detector
+        return AppearancePrior(detector, self.model, prior)
+
+    @property
+    def has_model(self) -> bool:
+        """An example image gave a colour model (the appearance prior can run)."""
+        return self.model is not None
+
+    @property
+    def has_colour(self) -> bool:
+        """The target's colour is known (colour check, colour region, shape check)."""
+        return self.colour_bgr is not None
+
+    @property
+    def known(self) -> bool:
+        return self.has_model or self.has_colour
+
+    def colour_matches(self, frame: Frame, detection: Detection) -> bool:
+        """The detection's core has the target's chromaticity (True when the colour is not
+        known: nothing to check)."""
+        if self.colour_bgr is None:
+            return True
+        return colour_matches(frame.image, detection, self.colour_bgr,
+                              self.colour_config.tolerance)
+
+    def colour_region(self, frame: Frame, near_px: tuple[float, float]) -> Detection | None:
+        """The connected region of the target's colour nearest ``near_px`` (None: no colour
+        known, or no region large enough)."""
+        if self.colour_bgr is None:
+            return None
+        c = self.colour_config
+        det: Detection | None = colour_blob(frame.image, self.colour_bgr, c.tolerance, near_px,
+                                            min_area_px=c.min_area_px, step=c.step,
+                                            min_brightness=c.min_brightness,
+                                            camera_id=frame.camera_id)
+        return det
+
+    def summary(self) -> str:
+        parts = []
+        if self.image is not None:
+            h, w = self.image.shape[:2]
+            parts.append(f"colour model of a {w}x{h} example image")
+        if self.colour_bgr is not None:
+            parts.append("colour " + "/".join(f"{v:.0f}" for v in self.colour_bgr) + " (BGR)")
+        return ", ".join(parts) or "unknown"
