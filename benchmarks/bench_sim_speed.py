@@ -83,7 +83,7 @@ def components(cfg: MissionFile) -> None:
     ext = min(1000.0, geofence_extent_m(cfg))
     fast = world_mod.SyntheticWorld(world_config(cfg), cfg.target, extent_m=ext)
     slow = world_mod.SyntheticWorld(world_config(cfg), cfg.target, extent_m=ext)
-    slow._bgra.update({lvl: None for lvl in range(len(slow.textures.base))})  # 3-channel path
+    slow.ground.bgra.update({lvl: None for lvl in range(len(slow.textures.base))})  # 3-channel path
     for cam in ("wide", "narrow"):
         model = getattr(cfg.cameras, cam).to_model(cam)
         for name, pos, q in mission_poses(cfg):

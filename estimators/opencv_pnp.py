@@ -20,6 +20,8 @@ from eaglemission.interfaces.estimator import CameraView
 from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate, Vec3
 
 if TYPE_CHECKING:
+    from eaglemission.estimators.correspondence import CornerPoseEstimator
+
     from eaglemission.config import TargetConfig
 
 SOLVEPNP_SQPNP: int = cv2.SOLVEPNP_SQPNP
@@ -140,6 +142,11 @@ class _OpenCVPnPEstimator:
             max_reprojection_error_px=cfg.max_reprojection_error_px,
             previous_pose_weight_px_per_m=cfg.previous_pose_weight_px_per_m, std_m=cfg.std_m,
             warm_up=True)
+
+    @property
+    def corners(self) -> CornerPoseEstimator:
+        """The corner estimator doing the work: corner orders, candidates, MBR correction."""
+        return self._core
 
     def reset(self) -> None:
         self._core.reset()

@@ -45,6 +45,8 @@ from eaglemission.kernels import lazy_kernel
 from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate
 
 if TYPE_CHECKING:
+    from eaglemission.estimators.correspondence import CornerPoseEstimator
+
     from eaglemission.config import TargetConfig
 
 __all__ = ["rpnp", "refine_pose", "reprojection_errors", "RPnPEstimator", "RPnPConfig"]
@@ -491,6 +493,11 @@ class RPnPEstimator:
             max_reprojection_error_px=cfg.max_reprojection_error_px,
             previous_pose_weight_px_per_m=cfg.previous_pose_weight_px_per_m, std_m=cfg.std_m,
             warm_up=True)
+
+    @property
+    def corners(self) -> CornerPoseEstimator:
+        """The corner estimator doing the work: corner orders, candidates, MBR correction."""
+        return self._core
 
     def reset(self) -> None:
         self._core.reset()
