@@ -8,7 +8,7 @@ straightforward ones they replaced, measured in the same run (issue 7: ``eaglemi
 Components (thread CPU time, median of repeats; the ratio is reference / fast, same process):
 
 * ground rendering from 4-channel texture levels vs the 3-channel path, both cameras at mission
-  poses (the images are identical, tests/drivers/cameras/test_world_fast_paths.py);
+  poses (the images are identical, tests/lab/world/test_world_fast_paths.py);
 * the fused MSS pass (numba) vs the numpy/OpenCV reference, at 640x480 and 1280x960;
 * the box fit's Levenberg-Marquardt call (``_lm_fit``) vs ``scipy.optimize.least_squares``;
 * RPnP's pose refinement compiled (numba) vs its numpy reference;
@@ -83,7 +83,7 @@ def components(cfg: MissionFile) -> None:
     ext = min(1000.0, geofence_extent_m(cfg))
     fast = world_mod.SyntheticWorld(world_config(cfg), cfg.target, extent_m=ext)
     slow = world_mod.SyntheticWorld(world_config(cfg), cfg.target, extent_m=ext)
-    slow._bgra.update({lvl: None for lvl in range(len(slow.textures.base))})  # 3-channel path
+    slow.ground.bgra.update({lvl: None for lvl in range(len(slow.textures.base))})  # 3-channel path
     for cam in ("wide", "narrow"):
         model = getattr(cfg.cameras, cam).to_model(cam)
         for name, pos, q in mission_poses(cfg):

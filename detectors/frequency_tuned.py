@@ -59,13 +59,17 @@ def frequency_tuned_map(image_bgr: np.ndarray, blur_sigma_px: float) -> np.ndarr
     return cv2.sqrt(cv2.transform(cv2.multiply(diff, diff), np.ones((1, 3), np.float32)))
 
 
-class FrequencyTunedConfig(DetectorConfig):
-    """Params of ``ft``."""
+class LabDistanceConfig(DetectorConfig):
+    """Params of the detectors whose map is a Lab colour distance (``ft``, ``mss``)."""
 
     blur_sigma_px: float = Field(1.0, ge=0, le=20, description="Gaussian blur (the reference's 5x5 binomial ~ sigma 1)")
     normalization: Literal["fixed", "minmax"] = "fixed"
     full_scale_lab: float = Field(120.0, gt=0, description="Lab distance mapped to 1 (fixed)")
     downscale: int = Field(1, ge=1, le=16, description="process the frame at 1/k resolution")
+
+
+class FrequencyTunedConfig(LabDistanceConfig):
+    """Params of ``ft``."""
 
 
 class FrequencyTunedDetector(SaliencyDetector):

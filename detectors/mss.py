@@ -14,12 +14,12 @@ DOI 10.1109/ICIP.2010.5652636 (ref. [31] of the eagle-eye paper).
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
-from eaglemission.detectors.base import DetectorConfig, SaliencyDetector, shrink, to_frame_size
-from eaglemission.detectors.frequency_tuned import _LAB8_TO_LAB, scale_map
+from eaglemission.detectors.base import SaliencyDetector, shrink, to_frame_size
+from eaglemission.detectors.frequency_tuned import _LAB8_TO_LAB, LabDistanceConfig, scale_map
 from pydantic import Field
 
 from eaglemission.types import Frame, Saliency
@@ -174,13 +174,10 @@ def mss_distance(lab8: np.ndarray, blurred8: np.ndarray, *, full_scale_lab: floa
     return d if full_scale_lab is None else scale_map(d, "fixed", full_scale_lab)
 
 
-class MSSConfig(DetectorConfig):
+class MSSConfig(LabDistanceConfig):
     """Params of ``mss``."""
 
     blur_sigma_px: float = Field(1.0, ge=0, le=20, description="Gaussian blur of I_f")
-    normalization: Literal["fixed", "minmax"] = "fixed"
-    full_scale_lab: float = Field(120.0, gt=0, description="Lab distance mapped to 1 (fixed)")
-    downscale: int = Field(1, ge=1, le=16, description="process the frame at 1/k resolution")
 
 
 class MaximumSymmetricSurroundDetector(SaliencyDetector):

@@ -8,16 +8,15 @@ The ``SOLVEPNP_*`` flags are looked up by name: their numeric values changed in 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, ClassVar, Literal
+from typing import TYPE_CHECKING, ClassVar
 
 import cv2
 import numpy as np
+from eaglemission.estimators.corner_plugin import CornerPnPConfig, CornerPnPEstimator
 from eaglemission.estimators.pnp_refine import refine_pose, reprojection_errors
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field
 
-from eaglemission.interfaces.estimator import CameraView
-from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate, Vec3
+from eaglemission.types import EstimationFailed, Mat3, PoseEstimate, Vec3
 
 if TYPE_CHECKING:
     from eaglemission.config import TargetConfig
@@ -107,27 +106,19 @@ def opencv_pnp(
     return PoseEstimate(R=R, t_m=t, reprojection_error=err, candidates=cands)
 
 
-class OpenCVPnPConfig(BaseModel):
+class OpenCVPnPConfig(CornerPnPConfig):
     """Params of the OpenCV PnP estimator plugins (same corner handling as ``rpnp``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
     refine: bool = False
-    mbr_correction: Literal["auto", "box_fit", "none"] = "auto"
-    max_reprojection_error_px: float = Field(default=8.0, gt=0)
-    previous_pose_weight_px_per_m: float = Field(default=20.0, ge=0)
-    std_m: float = Field(default=0.05, gt=0)
 
 
-class _OpenCVPnPEstimator:
+class _OpenCVPnPEstimator(CornerPnPEstimator):
     Config: ClassVar[type[OpenCVPnPConfig]] = OpenCVPnPConfig
     description: ClassVar[str] = ""
     method: ClassVar[str] = ""
 
     def __init__(self, config: OpenCVPnPConfig | None = None, *,
                  target: TargetConfig | None = None, **context: object) -> None:
-        from eaglemission.estimators.correspondence import CornerPoseEstimator
-
         self.config: OpenCVPnPConfig = config if config is not None else OpenCVPnPConfig()
         cfg = self.config
         method = self.method
@@ -135,17 +126,7 @@ class _OpenCVPnPEstimator:
         def solver(obj: NDArray[np.float64], nrm: NDArray[np.float64]) -> PoseEstimate | EstimationFailed:
             return opencv_pnp(obj, nrm, method=method, refine=cfg.refine, return_all=True)
 
-        self._core = CornerPoseEstimator(
-            solver=solver, target=target, source=method, mbr_correction=cfg.mbr_correction,
-            max_reprojection_error_px=cfg.max_reprojection_error_px,
-            previous_pose_weight_px_per_m=cfg.previous_pose_weight_px_per_m, std_m=cfg.std_m,
-            warm_up=True)
-
-    def reset(self) -> None:
-        self._core.reset()
-
-    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
-        return self._core.estimate(detection, view)
+        super().__init__(solver, cfg, target=target, source=method)
 
 
 class SQPnPEstimator(_OpenCVPnPEstimator):

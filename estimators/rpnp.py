@@ -33,16 +33,15 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import cv2
 import numpy as np
+from eaglemission.estimators.corner_plugin import CornerPnPConfig, CornerPnPEstimator
 from eaglemission.estimators.pnp_refine import (
     refine_pose,
     reprojection_errors,
 )
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field
 
-from eaglemission.interfaces.estimator import CameraView
 from eaglemission.kernels import lazy_kernel
-from eaglemission.types import Detection, EstimationFailed, Mat3, PoseEstimate, TargetEstimate
+from eaglemission.types import EstimationFailed, Mat3, PoseEstimate
 
 if TYPE_CHECKING:
     from eaglemission.config import TargetConfig
@@ -451,25 +450,15 @@ def _umeyama_batch(obj: NDArray[np.float64], cams: NDArray[np.float64]) -> tuple
 # ---------------------------------------------------------------------------------------------
 # Plugin
 # ---------------------------------------------------------------------------------------------
-class RPnPConfig(BaseModel):
+class RPnPConfig(CornerPnPConfig):
     """Params of the ``rpnp`` estimator plugin."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     pair: Literal["longest", "random"] = "longest"
     seed: int = 0
     refine: bool = False
-    mbr_correction: Literal["auto", "box_fit", "none"] = Field(
-        default="auto", description="MBR model: auto = the better of box silhouette / top face alone; "
-                            "box_fit = silhouette; none = MBR corners are the top face (paper)")
-    max_reprojection_error_px: float = Field(
-        default=8.0, gt=0, description="reject poses whose mean corner reprojection error is larger")
-    previous_pose_weight_px_per_m: float = Field(
-        default=20.0, ge=0, description="weight of the distance to the previous pose in the corner-order choice")
-    std_m: float = Field(default=0.05, gt=0, description="reported 1-sigma position uncertainty at 1 m range")
 
 
-class RPnPEstimator:
+class RPnPEstimator(CornerPnPEstimator):
     """Plugin ``rpnp``: target pose from a detection's 4 corners (top face as the model)."""
 
     Config: ClassVar[type[RPnPConfig]] = RPnPConfig
@@ -477,8 +466,6 @@ class RPnPEstimator:
 
     def __init__(self, config: RPnPConfig | None = None, *, target: TargetConfig | None = None,
                  **context: object) -> None:
-        from eaglemission.estimators.correspondence import CornerPoseEstimator
-
         self.config: RPnPConfig = config if config is not None else RPnPConfig()
         cfg = self.config
         rng = np.random.default_rng(cfg.seed)
@@ -486,14 +473,4 @@ class RPnPEstimator:
         def solver(obj: NDArray[np.float64], nrm: NDArray[np.float64]) -> PoseEstimate | EstimationFailed:
             return rpnp(obj, nrm, pair=cfg.pair, rng=rng, refine=cfg.refine, return_all=True)
 
-        self._core = CornerPoseEstimator(
-            solver=solver, target=target, source="rpnp", mbr_correction=cfg.mbr_correction,
-            max_reprojection_error_px=cfg.max_reprojection_error_px,
-            previous_pose_weight_px_per_m=cfg.previous_pose_weight_px_per_m, std_m=cfg.std_m,
-            warm_up=True)
-
-    def reset(self) -> None:
-        self._core.reset()
-
-    def estimate(self, detection: Detection, view: CameraView) -> TargetEstimate | EstimationFailed:
-        return self._core.estimate(detection, view)
+        super().__init__(solver, cfg, target=target, source="rpnp")

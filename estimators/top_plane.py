@@ -126,6 +126,18 @@ def plane_hits(cam_ned: Pose, model: CameraModel, pixels: ArrayLike, plane_down_
     return ray_plane_points(tuple(cam_ned.t), rays, plane_down_m, min_down=1e-3)
 
 
+def seen_mbr(model: CameraModel, corners_px: ArrayLike
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], float] | None:
+    """The :func:`mbr` of the part of a detection's MBR inside the image (it may reach past
+    the border: compare what lies inside), None when nothing of it with an area is inside."""
+    seen = clip_to_image(np.asarray(corners_px, dtype=np.float64), model.width_px,
+                         model.height_px)
+    if seen is None:
+        return None
+    centre, dims, long_deg = mbr(seen)
+    return (centre, dims, long_deg) if (dims > 0).all() else None
+
+
 def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
                      corners_px: ArrayLike, target: TargetConfig, *, ground_down_m: float = 0.0,
                      yaw_step_deg: float = 15.0, iterations: int = 3,
@@ -145,14 +157,10 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
     Same fits as :func:`fit_on_top_plane_reference` (tests/estimators/test_top_plane.py)."""
     plane = ground_down_m - float(target.height_m)
     to_cam = cam_ned.inverse()
-    # the detection's MBR may reach past the border: compare what lies inside the image
-    seen_det = clip_to_image(np.asarray(corners_px, dtype=np.float64), model.width_px,
-                             model.height_px)
-    if seen_det is None:
+    det = seen_mbr(model, corners_px)
+    if det is None:
         return None
-    c_det, dims_det, long_det = mbr(seen_det)
-    if not (dims_det > 0).all():
-        return None
+    c_det, dims_det, long_det = det
     # a box is symmetric under a half turn: headings over 180 deg suffice
     yaws = (np.arange(0.0, 180.0, yaw_step_deg) if yaw_hint_deg is None
             else yaw_hint_deg + np.linspace(-yaw_step_deg, yaw_step_deg, 7))
@@ -232,14 +240,10 @@ def fit_on_top_plane_reference(model: CameraModel, cam_ned: Pose, center_px: Arr
     time), kept as the reference its tests compare the batched path against."""
     plane = ground_down_m - float(target.height_m)
     to_cam = cam_ned.inverse()
-    # the detection's MBR may reach past the border: compare what lies inside the image
-    seen_det = clip_to_image(np.asarray(corners_px, dtype=np.float64), model.width_px,
-                             model.height_px)
-    if seen_det is None:
+    det = seen_mbr(model, corners_px)
+    if det is None:
         return None
-    c_det, dims_det, long_det = mbr(seen_det)
-    if not (dims_det > 0).all():
-        return None
+    c_det, dims_det, long_det = det
     best: PlaneFit | None = None
     # a box is symmetric under a half turn: headings over 180 deg suffice
     yaws = (np.arange(0.0, 180.0, yaw_step_deg) if yaw_hint_deg is None

@@ -1,7 +1,8 @@
-"""PX4 facts shared by the MAVLink emulator and its tests: modes, flags, default parameters.
+"""PX4 facts: modes, flags, default parameters.
 
-Pure data and small pure functions; no I/O, no MAVLink library. Values were checked against
-the real PX4 v1.16 traffic recorded in ``../shared/data/px4_sitl_tlogs`` (README there).
+The lab's MAVLink emulator and autopilot model build on them. Pure data and small pure
+functions; no I/O, no MAVLink library. Values were checked against the real PX4 v1.16 traffic
+recorded in ``../shared/data/px4_sitl_tlogs`` (README there).
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ FLAG_ARMED = 128
 
 MANUAL_MODES = frozenset({FlightMode.MANUAL, FlightMode.ALTCTL, FlightMode.POSCTL,
                           FlightMode.ACRO, FlightMode.STABILIZED})
+"""Modes flown from the pilot's sticks (MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)."""
 AUTO_MODES = frozenset({FlightMode.READY, FlightMode.TAKEOFF, FlightMode.HOLD,
                         FlightMode.MISSION, FlightMode.RETURN_TO_LAUNCH, FlightMode.LAND})
 

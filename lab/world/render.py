@@ -217,6 +217,11 @@ class SyntheticWorld:
 
     # -- target ---------------------------------------------------------------------------------
     @property
+    def target_object(self) -> SceneObject:
+        """The target box as a scene object: its faces in the target frame, its placement."""
+        return self._target
+
+    @property
     def target_position_ned_m(self) -> XYZ:
         s = self.simulation
         return (float(s.target_north_m), float(s.target_east_m), -float(self.target.height_m))
@@ -390,11 +395,6 @@ class SyntheticWorld:
         """Build the 4-channel base levels now (~50 ms for a 200 m world) rather than inside
         the first frames of a timed flight."""
         self.ground.warm_up()
-
-    @property
-    def _bgra(self) -> dict[int, NDArray[np.uint8] | None]:
-        """The ground renderer's 4-channel base levels (None: the 3-channel path)."""
-        return self.ground.bgra
 
     # boxes, discs, stripes --------------------------------------------------------------
     def _render_objects(self, img: NDArray[np.uint8], K: NDArray[np.float64],

@@ -277,8 +277,9 @@ def cache_dir() -> Path | None:
     return root / "eaglemission" / "textures"
 
 
-def _cached(name: str, make: Callable[[], NDArray[np.uint8]]) -> NDArray[np.uint8]:
-    """Load ``name`` from the disk cache or make it and store it (best effort)."""
+def cached_texture(name: str, make: Callable[[], NDArray[np.uint8]]) -> NDArray[np.uint8]:
+    """The texture ``name`` from the disk cache (:func:`cache_dir`), else ``make()``
+    stored there (best effort)."""
     folder = cache_dir()
     path = folder / f"{name}.npy" if folder is not None else None
     if path is not None and path.is_file():
@@ -341,12 +342,12 @@ def ground_textures(kind: str, seed: int, extent_m: float, base_texel_m: float =
     ``extent_m`` centred on home."""
     size = int(math.ceil(extent_m / base_texel_m))
     tag = f"v{TEXTURE_VERSION}_{kind}_s{seed}"
-    base = _cached(f"{tag}_base_{size}_{base_texel_m:g}",
+    base = cached_texture(f"{tag}_base_{size}_{base_texel_m:g}",
                    lambda: base_texture(kind, size, base_texel_m, seed))
     base_levels = mip_pyramid(base, 16)
     for a in base_levels:
         a.flags.writeable = False
-    detail = _cached(f"{tag}_detail_{detail_size_px}_{detail_texel_m:g}",
+    detail = cached_texture(f"{tag}_detail_{detail_size_px}_{detail_texel_m:g}",
                      lambda: detail_texture(kind, detail_size_px, detail_texel_m, seed))
     tiled = tiled_detail_levels(detail, detail_texel_m, base_texel_m, tiled_size_px)
     mean = tuple(float(v) for v in base_levels[-1].reshape(-1, 3).mean(axis=0))

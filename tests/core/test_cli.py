@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
+from importlib.metadata import entry_points
 
 from eaglemission.cli import build_parser, main
 
@@ -26,6 +28,10 @@ def test_plugins_table_lists_every_builtin() -> None:
 
 
 def test_every_declared_command_builds() -> None:
-    parser = build_parser()
-    sub = next(a for a in parser._actions if a.dest == "command")
-    assert {"plugins", "validate"} <= set(sub.choices)
+    """Each command of the ``eaglemission.commands`` group loads and is offered by the CLI."""
+    declared = {ep.name for ep in entry_points(group="eaglemission.commands")}
+    assert {"plugins", "validate"} <= declared
+    text = build_parser().format_help()
+    offered = set(re.findall(r"^ {4}(\S+)", text, re.M))
+    assert declared <= offered, text
+    assert "unavailable" not in text

@@ -169,7 +169,7 @@ async def test_mission_waypoints_clamped_and_speeds_capped() -> None:
     safe = SafeVehicle(sim, _safety(), clock=clock)
     await safe.connect()
     await safe.upload_mission([Waypoint(10.0, 0.0, 5.0), Waypoint(60.0, 0.0, 20.0, speed_mps=8.0)])
-    wps = sim._mission  # what reached the vehicle
+    wps = sim.uploaded_waypoints  # what reached the vehicle
     assert wps[0].speed_mps == 3.0 and wps[1].speed_mps == 3.0
     assert math.hypot(wps[1].north_m, wps[1].east_m) <= 30.0 - safe.envelope.margin_m + 1e-6
     assert wps[1].altitude_m == 11.5
@@ -182,7 +182,7 @@ async def test_non_convex_fence_mission_leg_is_cut_at_the_fence() -> None:
     safe = SafeVehicle(sim, _safety(geofence=fence), clock=clock)
     await safe.connect()
     await safe.upload_mission([Waypoint(25.0, 0.0, 5.0), Waypoint(0.0, 25.0, 5.0)])
-    wps = sim._mission
+    wps = sim.uploaded_waypoints
     env = safe.envelope
     assert env.path_safe((wps[0].north_m, wps[0].east_m), (wps[1].north_m, wps[1].east_m))
 

@@ -108,17 +108,24 @@ def test_rectangle_yaw_follows_previous_pose(mission):
     est = RPnPEstimator(RPnPConfig(), target=target)
     pos, q = approach_pose((0, 0, -target.height_m), 4.0, 30.0, 0.0)
     view = view_at(narrow, pos, q)
-    for true_yaw in (20.0, 160.0):
-        R_ct, t_ct = target_pose_in_camera(view.camera_pose_ned, np.array([0, 0, -target.height_m]), true_yaw)
+
+    def detection(yaw_deg: float) -> Detection:
+        R_ct, t_ct = target_pose_in_camera(view.camera_pose_ned, np.array([0, 0, -target.height_m]),
+                                           yaw_deg)
         mbr = project_box_mbr(narrow, R_ct, t_ct, target.length_m, target.width_m, target.height_m)
-        det = Detection(1.0, tuple(mbr.mean(axis=0)), mbr, (1, 1), 0, 1, "narrow")
+        return Detection(1.0, tuple(mbr.mean(axis=0)), mbr, (1, 1), 0, 1, "narrow")
+
+    for true_yaw in (20.0, 160.0):
+        det = detection(true_yaw)
         est.reset()
         first = est.estimate(det, view)
         assert -90 <= first.yaw_deg < 90
         assert abs(((first.yaw_deg - true_yaw) + 90) % 180 - 90) < 0.1  # float32 MBR corners
-        # Seed the history with the other branch: the estimator follows it.
-        est.reset()
-        est._core._prev = (np.array(first.position_ned_m), first.yaw_deg + 180.0, view.timestamp_ns)
+        # The target turns by 120 deg in 40 deg steps: each estimate follows the previous one,
+        # so the history ends nearer the other branch of the first view, which it then takes.
+        for turn_deg in (40.0, 80.0, 120.0):
+            step = est.estimate(detection(first.yaw_deg + turn_deg), view)
+            assert abs(((step.yaw_deg - first.yaw_deg - turn_deg) + 180) % 360 - 180) < 0.1
         second = est.estimate(det, view)
         assert abs(((second.yaw_deg - first.yaw_deg - 180.0) + 180) % 360 - 180) < 0.01
         np.testing.assert_allclose(second.position_ned_m, first.position_ned_m, atol=1e-9)
@@ -193,8 +200,8 @@ def test_no_region_fit_keeps_the_pnp_choice(mission, monkeypatch):
     est = RPnPEstimator(RPnPConfig(mbr_correction="box_fit", max_reprojection_error_px=1e3),
                         target=target)
     monkeypatch.setattr(CornerPoseEstimator, "_box_fit", lambda self, *a, **k: None)
-    pnp = est._core.candidates(mbr, narrow, view.camera_pose_ned)[0]
-    sol = est._core.solve_corners(mbr, narrow, view.camera_pose_ned)
+    pnp = est.corners.candidates(mbr, narrow, view.camera_pose_ned)[0]
+    sol = est.corners.solve_corners(mbr, narrow, view.camera_pose_ned)
     assert isinstance(sol, CornerSolution)
     assert sol.shift == pnp.shift and np.array_equal(sol.position_ned, pnp.position_ned)
     det = Detection(1.0, tuple(mbr.mean(axis=0)), mbr, (1, 1), 0, 1, "narrow")

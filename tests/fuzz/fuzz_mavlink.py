@@ -1,9 +1,9 @@
 """Fuzz target: random, truncated, corrupted and reordered MAVLink into the receive paths.
 
-* the emulator's receive path (:meth:`Px4Emulator._handle_bytes`, what :meth:`feed` and the
-  UDP reader deliver): valid messages of the handled kinds with random fields (NaN, infinities,
-  out-of-range ids and enums), cut, bit-flipped, interleaved with garbage and reordered, fed in
-  random chunks, with the emulator stepped between chunks;
+* the emulator's receive path (what :meth:`Px4Emulator.feed` and the UDP reader deliver, handled
+  by :meth:`~Px4Emulator.step`): valid messages of the handled kinds with random fields (NaN,
+  infinities, out-of-range ids and enums), cut, bit-flipped, interleaved with garbage and
+  reordered, fed in random chunks, with the emulator stepped between chunks;
 * the ground-truth parser of the MAVSDK driver (:meth:`HilTruth.on_message`, fed the JSON
   MAVSDK's MavlinkDirect hands over).
 
@@ -19,7 +19,6 @@ import logging
 import math
 import random
 import struct
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -141,7 +140,7 @@ class EmulatorRig:
         parser = M.MAVLink(None)
         parser.robust_parsing = True
         rig = cls(emu, parser, _Failures())
-        emu.set_output(rig._outgoing)
+        emu.set_output(rig.outgoing)
         lg = logging.getLogger(LOGGER)
         rig.old_level = lg.level
         if not lg.isEnabledFor(logging.ERROR):  # a quiet root logger must not hide failures
@@ -155,7 +154,7 @@ class EmulatorRig:
         lg.setLevel(self.old_level)
         self.emulator.stop()
 
-    def _outgoing(self, data: bytes) -> None:
+    def outgoing(self, data: bytes) -> None:
         self.out_messages += 1
         for msg in self.parser.parse_buffer(data) or []:
             if msg.get_type() == "BAD_DATA":
@@ -167,11 +166,8 @@ def check_stream(rig: EmulatorRig, chunks: list[bytes]) -> str:
     emu = rig.emulator
     try:
         for chunk in chunks:
-            with emu._lock:
-                emu._handle_bytes(chunk)
-                emu._advance(0.05)
-                emu._streams(time.monotonic())
-            emu._link.flush(time.monotonic())
+            emu.feed(chunk)
+            emu.step(0.05)
     except Exception as exc:
         raise FuzzCrash(TARGET, f"emulator raised {type(exc).__name__}: {exc}", chunks) from exc
     if rig.failures.records:

@@ -21,6 +21,7 @@ from fuzz_common import FuzzCrash
 from fuzz_telemetry import HostileTelemetry, check_sent
 
 from eaglemission.config import MissionFile
+from eaglemission.safety.envelope import SafeVehicle
 
 TARGET = "mission"
 BURSTS = ("nan", "inf", "jump", "backwards", "stale", "replay", "invalid", "nan_velocity",
@@ -34,7 +35,9 @@ def check_mission(cfg: MissionFile, seed: int) -> str:
 
     def prepare(asm: Any) -> None:
         hostile = HostileTelemetry(asm.driver)
-        asm.vehicle._inner = hostile  # the envelope (and all that reads it) sees the bursts
+        # the flight's envelope reads the vehicle through it: the mission, its telemetry watch
+        # and the envelope all see the bursts
+        asm.vehicle = SafeVehicle(hostile, asm.config.safety, clock=asm.clock)
         parts.update(hostile=hostile, safe=asm.vehicle)
 
     async def bursts(_mission: Any) -> None:

@@ -6,7 +6,6 @@ unreachable autopilot, and Ctrl-C in flight."""
 from __future__ import annotations
 
 import csv
-import os
 import signal
 import subprocess
 import time
@@ -23,6 +22,7 @@ from deployment_helpers import (
     read_status,
     run_env,
     sitl_vehicle,
+    viky_field_config,
 )
 from mission_helpers import variant
 
@@ -191,35 +191,12 @@ def test_sigint_in_flight_commands_the_configured_stop(tmp_path: Path, action: s
         assert -final["true_position_ned_m"][2] > 2.0, final
 
 
-def _calibration(path: Path, w: int, h: int, fx: float) -> Path:
-    path.write_text(yaml.safe_dump({
-        "image_width": w, "image_height": h, "camera_name": path.stem,
-        "camera_matrix": {"rows": 3, "cols": 3,
-                          "data": [fx, 0.0, (w - 1) / 2, 0.0, fx, (h - 1) / 2, 0.0, 0.0, 1.0]},
-        "distortion_model": "plumb_bob",
-        "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.0] * 5}}))
-    return path
-
-
 def test_field_path_on_the_gentl_test_producer_and_the_emulator(tmp_path: Path) -> None:
-    genicam = pytest.importorskip("genicam")
-    cti = os.path.join(os.path.dirname(genicam.__file__), "viky.cti")
-    if not os.path.isfile(cti):
-        pytest.skip("the genicam wheel ships no viky.cti")
     port = free_udp_port()
-    data = yaml.safe_load((REPO / "configs" / "field_basler_px4.yaml").read_text())
-    data["vehicle"]["params"] = {"url": f"udpin://127.0.0.1:{port}", "connect_timeout_s": 20}
-    w, h = 800, 600
+    data = viky_field_config(tmp_path, port)
     # the target is a red box; viky's test pattern is a 20 px green or blue square on white:
     # no target in view, so the route is flown to its end
     data["target"]["color_bgr"] = [30, 40, 210]
-    data["target"]["appearance_image"] = str(REPO / "configs" / data["target"]["appearance_image"])
-    for cid, dev, fx in (("wide", "VikyTL_DEV_green", 747.0), ("narrow", "VikyTL_DEV_blue",
-                                                                 3200.0)):
-        cam = data["cameras"][cid]
-        cam["params"] = {"cti_files": [cti], "device_id": dev, "pixel_format": "RGBa8",
-                         "frame_rate_hz": 30}
-        cam["calibration_file"] = str(_calibration(tmp_path / f"{cid}.yaml", w, h, fx))
     data["mission"]["route"] = [{"north_m": 0.0, "east_m": 0.0}, {"north_m": 12.0, "east_m": 0.0}]
     mission = tmp_path / "field_test.yaml"
     mission.write_text(yaml.safe_dump(data, sort_keys=False))

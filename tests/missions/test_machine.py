@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import random
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from eaglemission.missions import approach as ap
@@ -185,13 +189,104 @@ def test_route_end_without_target_is_a_failsafe() -> None:
     assert ab is not None and ab.action == "return"
 
 
-def test_guards_are_pure() -> None:
-    snap = dataclasses.replace(READY, confirmed_frames=3)
-    before = dataclasses.asdict(snap)
-    for guard in (ap.preflight_ok, ap.takeoff_done, ap.target_confirmed, ap.narrow_ready,
-                  ap.grasp_stable, ap.target_lost, ap.state_timed_out):
-        assert guard(snap) == guard(snap)
-    assert dataclasses.asdict(snap) == before
+# -- purity of the guards and the failsafe ----------------------------------------------------
+GUARDS: tuple[Callable[[Snapshot], object], ...] = tuple(dict.fromkeys(
+    [c for t in TRANSITIONS for c in t.get("conditions", [])]
+    + [ap.state_timed_out, ap.route_finished]))
+"""Every guard of the table, and the predicates :func:`failsafe` applies."""
+
+FLOATS = (0.0, 0.1, 1.0, 2.5, 3.0, 5.0, 10.0, 60.0, 121.0, float("inf"))
+ACTION_NAMES = (*ap.FINAL_ACTIONS, "resume_cruise")
+
+
+def _draw(rng: random.Random) -> dict[str, Any]:
+    """Field values for one snapshot, near the thresholds the guards compare them with."""
+    values: dict[str, Any] = {}
+    for f in dataclasses.fields(Snapshot):
+        default = f.default_factory() if f.default is dataclasses.MISSING else f.default
+        if isinstance(default, bool):
+            values[f.name] = rng.random() < 0.7
+        elif isinstance(default, int):
+            values[f.name] = rng.randint(0, 7)
+        elif isinstance(default, float):
+            values[f.name] = rng.choice(FLOATS)
+        elif f.name in ("on_target_lost", "interrupt_action"):
+            values[f.name] = rng.choice(ACTION_NAMES)
+        elif isinstance(default, str):
+            values[f.name] = rng.choice(("", "", "", "a reason"))
+        else:
+            values[f.name] = {"note": [rng.random()]}
+    return values
+
+
+def impurities(guard: Callable[[Snapshot], object], seed: int, n: int = 300) -> list[str]:
+    """How ``guard`` is not a pure function of its snapshot's values: a different answer for
+    equal snapshots built apart, a changed snapshot, a different answer for a snapshot seen
+    again after others (hidden state); and whether the draws exercised it at all."""
+    rng = random.Random(seed)
+    drawn = [_draw(rng) for _ in range(n)]
+    problems: list[str] = []
+    first = []
+    for i, values in enumerate(drawn):
+        a, b = Snapshot(**copy.deepcopy(values)), Snapshot(**copy.deepcopy(values))
+        ra, rb = guard(a), guard(b)
+        if ra != rb:
+            problems.append(f"draw {i}: equal snapshots built apart gave {ra!r} and {rb!r}")
+        if dataclasses.asdict(a) != values:
+            problems.append(f"draw {i}: the guard changed its snapshot")
+        first.append(ra)
+    for i in reversed(range(n)):  # the same values again, after all the others
+        again = guard(Snapshot(**copy.deepcopy(drawn[i])))
+        if again != first[i]:
+            problems.append(f"draw {i}: {first[i]!r} first, {again!r} after other snapshots")
+    if len({repr(r) for r in first}) < 2:
+        problems.append(f"the {n} draws gave one answer only: they do not exercise the guard")
+    return problems
+
+
+def _failsafe_in(state: MissionState) -> Callable[[Snapshot], object]:
+    cfg = load_config(check_plugins=False)
+    params = ApproachConfig(on_target_lost="land")
+
+    def check(s: Snapshot) -> object:
+        return failsafe(state, s, cfg.safety, params)
+
+    check.__name__ = f"failsafe_{state.name}"
+    return check
+
+
+@pytest.mark.parametrize("guard", [*GUARDS, *(_failsafe_in(s) for s in ACTIVE_STATES)],
+                         ids=lambda g: g.__name__)
+def test_guards_are_pure(guard: Callable[[Snapshot], object]) -> None:
+    assert impurities(guard, seed=1729) == []
+
+
+def test_the_purity_check_catches_impure_guards() -> None:
+    """:func:`impurities` fails a guard with hidden state, one that changes its snapshot and
+    one that looks at the object rather than its values."""
+    calls = [0]
+
+    def counts_calls(s: Snapshot) -> bool:
+        calls[0] += 1
+        return s.has_target and calls[0] % 3 != 0
+
+    last: list[bool] = [False]
+
+    def remembers_the_previous_answer(s: Snapshot) -> bool:
+        previous, last[0] = last[0], s.has_target
+        return previous or s.in_air
+
+    def marks_its_snapshot(s: Snapshot) -> bool:
+        s.extra["seen"] = True
+        return s.has_target
+
+    def looks_at_the_object(s: Snapshot) -> bool:
+        return s.has_target and id(s) // 16 % 7 < 3
+
+    for impure in (counts_calls, remembers_the_previous_answer, marks_its_snapshot,
+                   looks_at_the_object):
+        assert impurities(impure, seed=1729) != [], impure.__name__
+    assert any("one answer" in p for p in impurities(lambda s: True, seed=1729))
 
 
 def test_mermaid_doc_is_up_to_date() -> None:

@@ -32,6 +32,9 @@ from eaglemission.types import XYZ, FlightMode, GeoPoint, MissionProgress, Quat,
 
 log = logging.getLogger(__name__)
 
+MISSION_STREAMS = frozenset({"mission_progress"})
+"""The streams of the MAVSDK mission plugin; the others are the telemetry plugin's."""
+
 EventSink = Callable[[str, str, "dict[str, object] | None"], None]
 """``(kind, text, data)``: the vehicle's event log."""
 ModeHook = Callable[[FlightMode, str], None]
@@ -86,13 +89,7 @@ class MavsdkTelemetry:
         self._last_rx_ns = 0  # the newest receipt stamp of any stream
         self.stamps = TelemetryTimeCheck()  # every attitude sample's autopilot stamp
         self._stamp_reported: dict[str, int] = {}
-
-    def start(self, telemetry: Any, mission: Any, now_ns: Callable[[], int],
-              mav_flight_mode: Any) -> list[asyncio.Task[None]]:
-        """Start one task per stream (and the link supervisor); returns the tasks."""
-        self.now_ns = now_ns
-        self.mav_flight_mode = mav_flight_mode
-        handlers: dict[str, Callable[[int, Any], None]] = {
+        self._handlers: dict[str, Callable[[int, Any], None]] = {
             "position_velocity_ned": self._on_local,
             "attitude_quaternion": self._on_attitude,
             "attitude_angular_velocity_body": self._on_rates,
@@ -105,16 +102,30 @@ class MavsdkTelemetry:
             "health": self._on_health,
             "status_text": self._on_status,
             "distance_sensor": self._on_distance,
+            "mission_progress": self._on_progress,
         }
+        """Each stream's handler, by the name of its MAVSDK subscription."""
+
+    def start(self, telemetry: Any, mission: Any, now_ns: Callable[[], int],
+              mav_flight_mode: Any) -> list[asyncio.Task[None]]:
+        """Start one task per stream (and the link supervisor); returns the tasks."""
+        self.now_ns = now_ns
+        self.mav_flight_mode = mav_flight_mode
         loop = asyncio.get_running_loop()
-        tasks = [loop.create_task(self._stream(telemetry, name, handler), name=f"mavsdk-{name}")
-                 for name, handler in handlers.items()]
-        tasks.append(loop.create_task(self._stream(mission, "mission_progress", self._on_progress),
-                                      name="mavsdk-mission_progress"))
+        tasks = [loop.create_task(self._stream(mission if name in MISSION_STREAMS else telemetry,
+                                               name), name=f"mavsdk-{name}")
+                 for name in self._handlers]
         tasks.append(loop.create_task(self._supervise(), name="mavsdk-supervisor"))
         return tasks
 
-    async def _stream(self, plugin: Any, name: str, handler: Callable[[int, Any], None]) -> None:
+    def receive(self, stream: str, t: int, sample: Any) -> None:
+        """One sample of ``stream`` (a MAVSDK subscription's name, e.g. ``attitude_quaternion``)
+        received at ``t`` (ns, the vehicle's clock): the link's silence noted, the cache
+        updated. The stream tasks call it for every sample."""
+        self._note_gap(t)
+        self._handlers[stream](t, sample)
+
+    async def _stream(self, plugin: Any, name: str) -> None:
         loop = asyncio.get_running_loop()
         queue: asyncio.Queue[tuple[int, Any]] = asyncio.Queue()
         now_ns = self.now_ns
@@ -129,8 +140,7 @@ class MavsdkTelemetry:
             while True:
                 stamp, data = await queue.get()
                 try:
-                    self._note_gap(stamp)
-                    handler(stamp, data)
+                    self.receive(name, stamp, data)
                 except Exception:  # one bad sample must not end the stream
                     log.exception("mavsdk %s: cannot handle %r", name, data)
         finally:

@@ -31,6 +31,7 @@ import math
 from collections.abc import Callable
 from typing import Literal
 
+from eaglemission.drivers.vehicles.px4 import MANUAL_MODES
 from eaglemission.lab.vehicles.autopilot.mission import MissionExecutor, MissionItem
 from eaglemission.lab.vehicles.autopilot.monitors import (
     BatteryMonitor,
@@ -40,7 +41,6 @@ from eaglemission.lab.vehicles.autopilot.monitors import (
 from eaglemission.lab.vehicles.autopilot.orbit import Orbit, orbit_command
 from eaglemission.lab.vehicles.autopilot.params import (
     MANUAL_ACTION_MODES,
-    MANUAL_MODES,
     AutopilotListener,
     AutopilotParams,
     FailsafeAction,

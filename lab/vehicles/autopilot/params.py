@@ -46,8 +46,6 @@ class LandedState(enum.IntEnum):
     LANDING = 4
 
 
-MANUAL_MODES = frozenset({FlightMode.MANUAL, FlightMode.ALTCTL, FlightMode.POSCTL,
-                          FlightMode.ACRO, FlightMode.STABILIZED})
 POSITION_MODES = frozenset({FlightMode.TAKEOFF, FlightMode.HOLD, FlightMode.MISSION,
                             FlightMode.RETURN_TO_LAUNCH, FlightMode.OFFBOARD, FlightMode.POSCTL})
 """Modes that need a position estimate (the GPS-loss failsafe fires in them)."""

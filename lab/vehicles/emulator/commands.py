@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from eaglemission.drivers.vehicles import px4
 from eaglemission.lab.vehicles.autopilot import orbit as orbit_lib
-from eaglemission.lab.vehicles.autopilot.params import MANUAL_MODES, LandedState
+from eaglemission.lab.vehicles.autopilot.params import LandedState
 from eaglemission.lab.vehicles.emulator.config import (
     DISTANCE_SENSOR_MAX_HZ,
     HIL_STATE_DEFAULT_HZ,
@@ -175,7 +175,7 @@ class CommandHandlers:
         if mode == FlightMode.MISSION and not ap.mission.items:
             e.statustext("Switching to Mission is currently not available", CRITICAL)
             return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
-        if mode in MANUAL_MODES and not self.manual.present(e.sim_time_s):
+        if mode in px4.MANUAL_MODES and not self.manual.present(e.sim_time_s):
             # PX4 (COM_RC_IN_MODE 1, recorded h1): no MANUAL_CONTROL, no manual mode; the
             # vehicle stays in its mode (OFFBOARD kept following the setpoints)
             e.statustext(f"Switching to {MANUAL_MODE_NAMES[mode]} is currently not available", CRITICAL)
@@ -183,7 +183,7 @@ class CommandHandlers:
             return int(M.MAV_RESULT_TEMPORARILY_REJECTED)
         if mode == FlightMode.HOLD:
             ap.hold()
-        elif mode in MANUAL_MODES:
+        elif mode in px4.MANUAL_MODES:
             # the sticks decide (recorded h3: centred MANUAL_CONTROL, Position holds)
             ap.enter_manual(mode, "pilot")
             self.manual.apply(ap, self.stick_limits(), e.sim_time_s, force=True)
@@ -333,7 +333,7 @@ class CommandHandlers:
         """MANUAL_CONTROL (a GCS's virtual sticks): what Position / Altitude / Manual follow."""
         e = self._e
         self.manual.on_message(msg, e.sim_time_s)
-        if e.autopilot.mode in MANUAL_MODES and e.autopilot.manual_input:
+        if e.autopilot.mode in px4.MANUAL_MODES and e.autopilot.manual_input:
             self.manual.apply(e.autopilot, self.stick_limits(), e.sim_time_s)
 
     def stick_limits(self) -> StickLimits:

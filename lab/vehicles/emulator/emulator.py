@@ -452,12 +452,20 @@ class Px4Emulator:
 
     def _tick(self) -> None:
         wall = time.monotonic()
+        dt = max(0.0, wall - self._last_wall) * self.config.speedup * self.config.clock_rate
+        self._last_wall = wall  # the emulator thread's own
+        self.step(dt, wall=wall)
+
+    def step(self, dt_s: float, *, wall: float | None = None) -> None:
+        """One tick of the emulator's own thread, for a caller that drives it without
+        :meth:`start`: the bytes :meth:`feed` delivered are handled, the vehicle is advanced by
+        ``dt_s`` simulated seconds (at most 0.5), the streams due at ``wall`` (monotonic
+        seconds, default now) and the delayed packets that are due are sent."""
+        wall = time.monotonic() if wall is None else wall
         with self._lock:
             for data in self._link.inbound(wall):
                 self._handle_bytes(data)
-            dt = max(0.0, wall - self._last_wall) * self.config.speedup * self.config.clock_rate
-            self._last_wall = wall
-            self._advance(min(dt, 0.5))
+            self._advance(min(dt_s, 0.5))
             self._streams(wall)
             self.missions.retry(wall)
             self.commands.tick()

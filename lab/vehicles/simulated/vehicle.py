@@ -73,8 +73,8 @@ class SimulatedVehicle(SimulatedModel):
             return MissionProgress(m.current, len(m.items))
 
     @property
-    def _mission(self) -> tuple[Waypoint, ...]:
-        """The uploaded waypoints (what reached the vehicle; for tests)."""
+    def uploaded_waypoints(self) -> tuple[Waypoint, ...]:
+        """The waypoints of the last accepted mission upload, as they reached the vehicle."""
         return self._waypoints
 
     async def arm(self) -> None:

@@ -21,32 +21,20 @@ from collections.abc import AsyncIterator
 import pytest
 from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle
 from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
+from emulator_support import ScaledClock
 from udp_relay import UdpRelay
+from vehicle_contract import (
+    BackendBase,
+    VehicleContract,
+    start_offboard_here,
+    stream,
+    stream_until,
+    take_off,
+)
 
 from eaglemission.errors import ModeChangedExternally
 from eaglemission.names import ENV_PX4_URL
 from eaglemission.types import FlightMode
-
-try:  # tests/ is not a package: the contract module sits next to this file
-    from contract import (
-        BackendBase,
-        VehicleContract,
-        start_offboard_here,
-        stream,
-        stream_until,
-        take_off,
-    )
-    from emulator_support import ScaledClock
-except ImportError:  # pragma: no cover - when tests/ becomes a package
-    from .contract import (  # type: ignore[no-redef]
-        BackendBase,
-        VehicleContract,
-        start_offboard_here,
-        stream,
-        stream_until,
-        take_off,
-    )
-    from .emulator_support import ScaledClock  # type: ignore[no-redef]
 
 pytestmark = pytest.mark.machine  # a PX4 SITL's fixed ports when set (tests/conftest.py)
 

@@ -31,9 +31,10 @@ def _sample(tel: MavsdkTelemetry, receipt_ms: int, boot_ms: int, w: float = 1.0)
         VelocityNed,
     )
 
-    tel._on_local(receipt_ms * MS, PositionVelocityNed(PositionNed(1.0, 2.0, -3.0),
-                                                         VelocityNed(0.0, 0.0, 0.0)))
-    tel._on_attitude(receipt_ms * MS + 1, Quaternion(w, 0.0, 0.0, 0.0, boot_ms * 1000))
+    tel.receive("position_velocity_ned", receipt_ms * MS,
+                PositionVelocityNed(PositionNed(1.0, 2.0, -3.0), VelocityNed(0.0, 0.0, 0.0)))
+    tel.receive("attitude_quaternion", receipt_ms * MS + 1,
+                Quaternion(w, 0.0, 0.0, 0.0, boot_ms * 1000))
 
 
 def test_copies_and_older_samples_are_refused_with_an_event() -> None:
@@ -74,7 +75,8 @@ def test_no_attitude_stamp_means_no_autopilot_time() -> None:
     tel, _ = _telemetry()
     from mavsdk.plugins.telemetry.telemetry import PositionNed, PositionVelocityNed, VelocityNed
 
-    tel._on_local(MS, PositionVelocityNed(PositionNed(0.0, 0.0, 0.0), VelocityNed(0.0, 0.0, 0.0)))
+    tel.receive("position_velocity_ned", MS,
+                PositionVelocityNed(PositionNed(0.0, 0.0, 0.0), VelocityNed(0.0, 0.0, 0.0)))
     state = tel.build_state(MS)
     assert state is not None and state.autopilot_time_ns is None
 

@@ -20,17 +20,13 @@ from eaglemission.drivers.vehicles.mavsdk.vehicle import (
 )
 from eaglemission.drivers.vehicles.mavsdk.watchdog import OffboardWatchdog
 from eaglemission.lab.vehicles.emulator.emulator import mavlink as M
+from emulator_support import flying_pair, wait_for
 
 from eaglemission import registry
 from eaglemission.errors import TimeoutError_, VehicleError
 from eaglemission.geometry import wrap_deg
 from eaglemission.interfaces import Vehicle
 from eaglemission.types import FlightMode, Setpoint
-
-try:  # tests/ is not a package
-    from emulator_support import flying_pair, wait_for
-except ImportError:  # pragma: no cover
-    from .emulator_support import flying_pair, wait_for  # type: ignore[no-redef]
 
 pytestmark = pytest.mark.machine  # MAVSDK over UDP links (tests/conftest.py)
 

@@ -22,17 +22,13 @@ from eaglemission.lab.vehicles.emulator.emulator import (
 )
 from eaglemission.lab.vehicles.multicopter.dynamics import RangefinderParams, rangefinder_reading_m
 from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle, SimulatedVehicleConfig
+from emulator_support import flying_pair, scenario, wait_for
 from mavsdk.plugins.telemetry import DistanceSensor, EulerAngle
 
 from eaglemission.clock import ManualClock
 from eaglemission.geometry import down_axis_cos_tilt as cos_tilt
 from eaglemission.geometry import ned_to_geodetic
 from eaglemission.types import FlightMode, GeoPoint, Setpoint
-
-try:  # tests/ is not a package
-    from emulator_support import flying_pair, scenario, wait_for
-except ImportError:  # pragma: no cover
-    from .emulator_support import flying_pair, scenario, wait_for  # type: ignore[no-redef]
 
 M = mavlink
 RF = RangefinderParams(enabled=True, noise_std_m=0.01, min_range_m=0.1, max_range_m=12.0)

@@ -14,7 +14,7 @@ from eaglemission.lab.faults.outcomes import COMPLETE, OUTCOMES, expected_action
 from eaglemission.config import load_config
 from eaglemission.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _load(tmp_path: Path, faults: Any) -> Any:

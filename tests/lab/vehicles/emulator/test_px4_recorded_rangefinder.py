@@ -18,13 +18,8 @@ from typing import Any
 
 from eaglemission.drivers.vehicles.mavsdk.support import downward_range_m
 from eaglemission.lab.vehicles.emulator.config import PX4_SIH_RANGEFINDER, distance_sensor_cm
-
-try:  # tests/ is not a package
-    from emulator_support import scenario
-    from test_px4_recorded_facts import Gcs, make_emulator
-except ImportError:  # pragma: no cover
-    from .emulator_support import scenario  # type: ignore[no-redef]
-    from .test_px4_recorded_facts import Gcs, make_emulator  # type: ignore[no-redef]
+from emulator_support import scenario
+from test_px4_recorded_facts import Gcs, make_emulator
 
 
 def _cos_tilt(q: Any) -> float:

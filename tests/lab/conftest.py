@@ -1,4 +1,5 @@
-"""Fixtures of the camera driver tests: a small synthetic world and pose sources."""
+"""Fixtures of the synthetic world and camera tests: a small world, its target, two camera
+models."""
 
 from __future__ import annotations
 

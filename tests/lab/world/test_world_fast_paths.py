@@ -18,12 +18,12 @@ def test_four_channel_ground_equals_three_channel(sim_config, target_config, wid
     poses = [looking_at_target(d, b) for d, b in ((3.0, 10.0), (12.0, -30.0))]
     imgs = [fast.render(m, p, q, 1_000_000_000)[0] for m in (wide_model, narrow_model)
             for p, q in poses]
-    assert any(v is not None for v in fast._bgra.values())  # the 4-channel path was used
+    assert any(v is not None for v in fast.ground.bgra.values())  # the 4-channel path was used
     monkeypatch.setattr(ground_mod, "BGRA_LEVEL_BUDGET_BYTES", 0)
     slow = SyntheticWorld(sim_config, target_config, extent_m=60.0)
     ref = [slow.render(m, p, q, 1_000_000_000)[0] for m in (wide_model, narrow_model)
            for p, q in poses]
-    assert all(v is None for v in slow._bgra.values())
+    assert all(v is None for v in slow.ground.bgra.values())
     for a, b in zip(imgs, ref):
         assert np.array_equal(a, b)
 
@@ -52,14 +52,14 @@ def _sky_reference(img, K, R_no):
 
 def test_sky_equals_the_reference_fill(sim_config, target_config, wide_model):
     w = SyntheticWorld(sim_config, target_config, extent_m=60.0)
-    ctx = w._camera_ctx(wide_model)
+    true = w.true_camera(wide_model)  # the mount and focal errors the world renders with
     diff_px = total = 0
     for roll, pitch in ((0.0, 0.0), (20.0, 25.0), (-35.0, 10.0)):  # horizon tilted, raised
-        R_no = quat_to_R(euler_to_quat(roll, pitch, 40.0)) @ ctx.R_body_optical_true
+        R_no = quat_to_R(euler_to_quat(roll, pitch, 40.0)) @ true.mount.R_body_optical
         a = np.zeros((wide_model.height_px, wide_model.width_px, 3), np.uint8)
         b = a.copy()
-        w._render_sky(a, ctx.K_true, R_no)
-        _sky_reference(b, ctx.K_true, R_no)
+        w.ground.render_sky(a, true.K, R_no)
+        _sky_reference(b, true.K, R_no)
         d = np.abs(a.astype(int) - b.astype(int)).max(axis=2)
         assert d.max() <= 1  # float32 rounding order only
         diff_px += int((d > 0).sum())

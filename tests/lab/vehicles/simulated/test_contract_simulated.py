@@ -8,16 +8,12 @@ import pytest
 from eaglemission.lab.vehicles.multicopter.dynamics import DynamicsParams
 from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle
 from eaglemission.lab.world.synthetic import SyntheticWorldConfig
+from vehicle_contract import BackendBase, VehicleContract
 
 from eaglemission.clock import ManualClock
 from eaglemission.config import SafetyConfig
 from eaglemission.interfaces import Vehicle
 from eaglemission.types import FlightMode
-
-try:  # tests/ is not a package: the contract module sits next to this file
-    from contract import BackendBase, VehicleContract
-except ImportError:  # pragma: no cover - when tests/ becomes a package
-    from .contract import BackendBase, VehicleContract  # type: ignore[no-redef]
 
 
 class SimulatedBackend(BackendBase):

@@ -31,13 +31,9 @@ from typing import Any
 import pytest
 from eaglemission.drivers.vehicles import px4
 from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator, mavlink
+from emulator_support import scenario
 
 from eaglemission.types import FlightMode
-
-try:  # tests/ is not a package
-    from emulator_support import scenario
-except ImportError:  # pragma: no cover
-    from .emulator_support import scenario  # type: ignore[no-redef]
 
 M = mavlink
 OFFBOARD = px4.custom_mode(FlightMode.OFFBOARD)

@@ -219,14 +219,14 @@ def test_texture_disk_cache_round_trip_and_pruning(tmp_path, monkeypatch):
         calls.append(1)
         return textures.base_texture("soil", 64, 0.05, 4)
 
-    a = textures._cached("v1_soil_s4_base_64", make)
-    b = textures._cached("v1_soil_s4_base_64", make)
+    a = textures.cached_texture("v1_soil_s4_base_64", make)
+    b = textures.cached_texture("v1_soil_s4_base_64", make)
     assert len(calls) == 1 and np.array_equal(a, b)
     assert not list(tmp_path.glob("*.tmp*"))
     # pruning keeps the cache under its size limit, newest first
     monkeypatch.setenv("EAGLEMISSION_TEXTURE_CACHE_MB", str(2.5 * a.nbytes / 1e6))
     for k in range(4):
-        textures._cached(f"v1_soil_s{k}_base_64x", lambda k=k: textures.base_texture(
+        textures.cached_texture(f"v1_soil_s{k}_base_64x", lambda k=k: textures.base_texture(
             "soil", 64, 0.05, k))
     assert len(list(tmp_path.glob("*.npy"))) == 2
     monkeypatch.setenv("EAGLEMISSION_TEXTURE_CACHE", "off")
@@ -237,8 +237,8 @@ def test_box_casts_a_shadow_on_the_ground(sim_config, target_config, wide_model)
     sim = sim_config.model_copy(update={"mount_error_deg": 0.0, "focal_error_fraction": 0.0,
                                         "ground_texture": "grass"})
     world = SyntheticWorld(sim, target_config, extent_m=60.0)
-    R, t = world._target.pose_ned(1_000_000_000)
-    poly = world.shadow_polygon_ned(world._target.faces, R, t)
+    R, t = world.target_object.pose_ned(1_000_000_000)
+    poly = world.shadow_polygon_ned(world.target_object.faces, R, t)
     assert poly is not None
     # look at the shadow from above-ish, then compare with a flat target (no shadow)
     pos, q = looking_at_target(3.0, 60.0)

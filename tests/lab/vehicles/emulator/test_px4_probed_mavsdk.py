@@ -23,13 +23,9 @@ from collections.abc import Callable
 import pytest
 from eaglemission.drivers.vehicles import px4
 from eaglemission.lab.vehicles.emulator.dialect import M
+from plain_mavsdk import PlainClient, bearing_deg, plain_client
 
 from eaglemission.types import FlightMode
-
-try:  # tests/ is not a package
-    from plain_mavsdk import PlainClient, bearing_deg, plain_client
-except ImportError:  # pragma: no cover
-    from .plain_mavsdk import PlainClient, bearing_deg, plain_client  # type: ignore[no-redef]
 
 pytestmark = pytest.mark.machine  # no port of its own (raw://): kept with the other
 # real-time MAVSDK modules, a conservative choice (tests/conftest.py)

@@ -22,13 +22,8 @@ from typing import Any
 import pytest
 from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
 from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle, SimulatedVehicleConfig
-
-try:  # tests/ is not a package
-    from emulator_support import scenario
-    from test_px4_recorded_facts import Gcs, M
-except ImportError:  # pragma: no cover
-    from .emulator_support import scenario  # type: ignore[no-redef]
-    from .test_px4_recorded_facts import Gcs, M  # type: ignore[no-redef]
+from emulator_support import scenario
+from test_px4_recorded_facts import Gcs, M
 
 R_EARTH_M = 6371000.0
 RUNS = {"f1": {}, "f2": {"RTL_RETURN_ALT": 8.0, "RTL_DESCEND_ALT": 4.0}}

@@ -1,5 +1,6 @@
 """Helpers of the deployment tests: real processes (``eaglemission run``, ``eaglemission
-sitl-vehicle``), free ports, mission-file variants written to disk. Not a test module."""
+sitl-vehicle``), free ports, mission-file variants written to disk, the field config on the
+genicam wheel's GenTL test producer. Not a test module."""
 
 from __future__ import annotations
 
@@ -15,9 +16,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def free_udp_port() -> int:
@@ -91,3 +93,44 @@ def run_env() -> dict[str, str]:
     env = dict(os.environ)
     env.setdefault("MPLBACKEND", "Agg")
     return env
+
+
+def write_calibration(path: Path, w: int, h: int, fx: float) -> Path:
+    """A distortion-free ROS camera_info calibration of a ``w`` x ``h`` px camera."""
+    path.write_text(yaml.safe_dump({
+        "image_width": w, "image_height": h, "camera_name": path.stem,
+        "camera_matrix": {"rows": 3, "cols": 3,
+                          "data": [fx, 0.0, (w - 1) / 2, 0.0, fx, (h - 1) / 2, 0.0, 0.0, 1.0]},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5, "data": [0.0] * 5}}))
+    return path
+
+
+def viky_cti() -> str:
+    """The genicam wheel's GenTL test producer (the test is skipped without it)."""
+    genicam = pytest.importorskip("genicam")
+    cti = os.path.join(os.path.dirname(genicam.__file__), "viky.cti")
+    if not os.path.isfile(cti):
+        pytest.skip("the genicam wheel ships no viky.cti")
+    return cti
+
+
+VIKY_SIZE_PX = (800, 600)
+
+
+def viky_field_config(tmp: Path, port: int) -> dict[str, Any]:
+    """configs/field_basler_px4.yaml with the vehicle on ``udpin://127.0.0.1:<port>`` and both
+    cameras on the viky producer's devices (green: wide, blue: narrow; RGBa8 at 800x600 px,
+    calibrations written to ``tmp``)."""
+    cti = viky_cti()
+    data: dict[str, Any] = yaml.safe_load((REPO / "configs" / "field_basler_px4.yaml").read_text())
+    data["vehicle"]["params"] = {"url": f"udpin://127.0.0.1:{port}", "connect_timeout_s": 20}
+    data["target"]["appearance_image"] = str(REPO / "configs" / data["target"]["appearance_image"])
+    w, h = VIKY_SIZE_PX
+    for cid, dev, fx in (("wide", "VikyTL_DEV_green", 747.0), ("narrow", "VikyTL_DEV_blue",
+                                                                 3200.0)):
+        cam = data["cameras"][cid]
+        cam["params"] = {"cti_files": [cti], "device_id": dev, "pixel_format": "RGBa8",
+                         "frame_rate_hz": 30}
+        cam["calibration_file"] = str(write_calibration(tmp / f"{cid}.yaml", w, h, fx))
+    return data

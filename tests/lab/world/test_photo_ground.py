@@ -113,7 +113,7 @@ def test_target_and_its_shadow_are_drawn_on_the_photo(tmp_path, target_config):
     assert truth.target_visible
     top = np.all(img == np.asarray(world.target_top_colour_bgr, np.uint8), axis=2)
     assert top.sum() > 100
-    poly = world.shadow_polygon_ned(world._target.faces, *world._target.pose_ned(0))
+    poly = world.shadow_polygon_ned(world.target_object.faces, *world.target_object.pose_ned(0))
     assert poly is not None  # the sun casts a shadow on the photo ground too
 
 

@@ -13,19 +13,14 @@ from eaglemission.lab.vehicles.multicopter.dynamics import DynamicsParams
 from eaglemission.lab.vehicles.simulated.vehicle import SimulatedVehicle, SimulatedVehicleConfig
 from eaglemission.lab.world.synthetic import SyntheticWorldConfig
 from pydantic import ValidationError
+from test_contract_simulated import SimulatedBackend
+from vehicle_contract import VehicleContract
 
 from eaglemission import registry
 from eaglemission.clock import LoopClock, ManualClock, run_virtual
 from eaglemission.errors import ModeChangedExternally, TimeoutError_, VehicleError
 from eaglemission.geometry import R_to_euler, quat_to_R
 from eaglemission.types import FlightMode, Setpoint, VehicleState, Waypoint
-
-try:
-    from contract import VehicleContract
-    from test_contract_simulated import SimulatedBackend
-except ImportError:  # pragma: no cover
-    from .contract import VehicleContract  # type: ignore[no-redef]
-    from .test_contract_simulated import SimulatedBackend  # type: ignore[no-redef]
 
 
 def make(clock: ManualClock | None = None, **cfg: object) -> tuple[SimulatedVehicle, ManualClock]:

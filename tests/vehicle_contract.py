@@ -4,7 +4,7 @@ A backend test module defines an async fixture ``vehicle_backend`` that yields a
 backend object (see :class:`VehicleBackend`) and a test class that inherits
 :class:`VehicleContract`::
 
-    from contract import BackendBase, VehicleContract   # same folder
+    from vehicle_contract import BackendBase, VehicleContract   # tests/, on sys.path
 
     @pytest.fixture(params=["calm", "windy"])
     async def vehicle_backend(request):
@@ -16,9 +16,9 @@ backend object (see :class:`VehicleBackend`) and a test class that inherits
     class TestMyBackendContract(VehicleContract):
         pass
 
-Backends: the simulated vehicle (test_contract_simulated.py, ManualClock: the whole suite runs
-in well under a second of wall time per test), the MAVSDK driver talking to the MAVLink
-emulator (test_contract_mavsdk.py), and a real PX4 SITL when ``EAGLEMISSION_PX4_URL``
+Backends: the simulated vehicle (tests/lab/vehicles/simulated/test_contract_simulated.py,
+ManualClock: the whole suite runs in well under a second of wall time per test), the MAVSDK
+driver talking to the MAVLink emulator (tests/drivers/vehicles/test_contract_mavsdk.py), and a real PX4 SITL when ``EAGLEMISSION_PX4_URL``
 is set (skipped otherwise).
 
 Every wait is bounded (``backend.wait``); timeouts are in the backend's clock seconds and sized

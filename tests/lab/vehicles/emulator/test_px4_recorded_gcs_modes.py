@@ -18,15 +18,10 @@ from typing import Any
 
 import pytest
 from eaglemission.drivers.vehicles import px4
+from emulator_support import read_tlog, scenario
+from test_px4_recorded_facts import Gcs, M, make_emulator
 
 from eaglemission.types import FlightMode
-
-try:  # tests/ is not a package
-    from emulator_support import read_tlog, scenario
-    from test_px4_recorded_facts import Gcs, M, make_emulator
-except ImportError:  # pragma: no cover
-    from .emulator_support import read_tlog, scenario  # type: ignore[no-redef]
-    from .test_px4_recorded_facts import Gcs, M, make_emulator  # type: ignore[no-redef]
 
 RUNS = {"h1": (3, 0, False), "h2": (4, 3, False), "h3": (3, 0, True)}
 """run -> DO_SET_MODE (main, sub), centred MANUAL_CONTROL streamed."""

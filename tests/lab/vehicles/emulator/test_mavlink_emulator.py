@@ -34,14 +34,10 @@ from eaglemission.lab.vehicles.emulator.emulator import (
     stream_rates_hz,
 )
 from eaglemission.lab.vehicles.emulator.messages import Streams
+from emulator_support import flying_pair, scenario, wait_for
 
 from eaglemission.errors import ConfigError
 from eaglemission.types import FlightMode, Setpoint, Waypoint
-
-try:  # tests/ is not a package
-    from emulator_support import flying_pair, scenario, wait_for
-except ImportError:  # pragma: no cover
-    from .emulator_support import flying_pair, scenario, wait_for  # type: ignore[no-redef]
 
 pytestmark = pytest.mark.machine  # emulator processes, UDP links (tests/conftest.py)
 
