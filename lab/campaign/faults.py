@@ -194,5 +194,5 @@ def print_fault_table(runs: list[dict[str, Any]]) -> int:
     fails = fault_failures(runs)
     c.print(f"runs in their expected outcome: {len(runs) - len(fails)}/{len(runs)}")
     for line in fails:
-        c.print(f"  FAILED {line}")
+        c.print(f"  FAILED {line}", markup=False, soft_wrap=True)
     return len(fails)

@@ -72,6 +72,9 @@ def _params(items: list[str]) -> dict[str, float]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from eaglemission import extras
+
+    extras.require("mavsdk", "sitl-vehicle")  # pymavlink: one line and exit 2 without it
     from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
     from rich.console import Console
 
