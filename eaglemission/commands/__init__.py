@@ -27,5 +27,10 @@ def console(*, stderr: bool = False) -> Any:
     from rich.console import Console
 
     out = Console(stderr=stderr, highlight=False)
-    out.soft_wrap = not out.is_terminal
+    if not out.is_terminal:  # tables too: as wide as they need (up to PIPE_WIDTH)
+        out = Console(stderr=stderr, highlight=False, width=PIPE_WIDTH, soft_wrap=True)
     return out
+
+
+PIPE_WIDTH = 240
+"""Columns a table may take when the output is not a terminal."""

@@ -182,8 +182,6 @@ def _run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         _print(err, f"invalid: {exc}")
         return run.EXIT_CONFIG
-    for w in warnings:
-        _print(err, f"warning: {w}")
     data = cfg.model_dump()
     if args.detector:
         data["detector"] = {"type": args.detector, "params": {}}
@@ -197,9 +195,14 @@ def _run(args: argparse.Namespace) -> int:
             extras.require("live", "run --live (or the config's live section)")
         if args.vehicle == "emulator":
             extras.require("mavsdk", "run --vehicle emulator")
+        extras.require_for(assembly.part_classes(MissionFile.model_validate(data)))
     except (ValueError, extras.MissingExtra) as exc:
         _print(err, f"error: {exc}")
         return run.EXIT_CONFIG
+    from eaglemission.commands.checks import hardware_warnings
+
+    for w in warnings + hardware_warnings(MissionFile.model_validate(data)):
+        _print(err, f"warning: {w}")
     source = args.config or "<embedded sitl_synthetic.yaml>"
     _print(console, f"eaglemission run {source}" + (" --dry-run (checks only: nothing is armed)"
                                                     if args.dry_run else ""))

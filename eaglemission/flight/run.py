@@ -101,6 +101,8 @@ class FlightOptions:
     truth_wait_s: float = 3.0
     """How long to wait, after connecting, for the first ground-truth sample."""
     camera_open_timeout_s: float = 20.0
+    progress_every_s: float = progress.TICK_S
+    """How often a slow step before take-off (connecting, compiling) says it is still going."""
 
 
 @dataclass
@@ -211,7 +213,7 @@ async def fly(cfg: MissionFile, options: FlightOptions | None = None) -> FlightR
 
 async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                say: Callable[[str], None], interrupts: FlightInterrupts) -> FlightResult:
-    with progress.compile_progress(say) as compiling:
+    with progress.compile_progress(say, opt.progress_every_s) as compiling:
         result = await _fly_parts(cfg, opt, clock, say, interrupts, compiling)
         in_flight = compiling.compiled - compiling.reported
         if in_flight and result.outcome is not None:
@@ -232,13 +234,13 @@ def _connection_error(exc: DriverError) -> str:
 
 
 async def _connect(cfg: MissionFile, driver: Any, safe: SafeVehicle,
-                   say: Callable[[str], None]) -> str:
+                   say: Callable[[str], None], every_s: float) -> str:
     """Connect the vehicle, saying how long it has waited; '' or why it did not connect."""
     connect_timeout_s = float(getattr(driver.config, "connect_timeout_s", 30.0))
     what = _vehicle_what(driver, cfg)
     say(f"connecting to {what}")
     try:  # connect first: an unreachable autopilot fails within its connect_timeout_s
-        with progress.waiting(say, what):
+        with progress.waiting(say, what, every_s):
             await _bounded("vehicle.connect()", safe.connect(), connect_timeout_s + 5.0)
     except DriverError as exc:
         await _close_vehicle(safe)
@@ -249,14 +251,14 @@ async def _connect(cfg: MissionFile, driver: Any, safe: SafeVehicle,
     return ""
 
 
-async def _open_for_dry_run(asm: Assembly, timeout_s: float, say: Callable[[str], None]
-                            ) -> tuple[dict[str, Any], list[Check]]:
+async def _open_for_dry_run(asm: Assembly, timeout_s: float, say: Callable[[str], None],
+                            every_s: float) -> tuple[dict[str, Any], list[Check]]:
     """Open each camera (a failure is a failed check, the others still open)."""
     opened: dict[str, Any] = {}
     failed: list[Check] = []
     for cid, cam in asm.cameras.items():
         try:
-            with progress.waiting(say, f"camera {cid} to open"):
+            with progress.waiting(say, f"camera {cid} to open", every_s):
                 await _bounded(f"camera {cid!r}.open()", run_blocking(cam.open), timeout_s)
             opened[cid] = cam
         except Exception as exc:  # noqa: BLE001 - a vendor SDK may raise anything
@@ -287,7 +289,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
                             dry_run=opt.dry_run)
     result = FlightResult(EXIT_ERROR, virtual=virtual, dry_run=opt.dry_run)
     checks: list[Check] = []
-    not_connected = await _connect(cfg, driver, safe, say)
+    not_connected = await _connect(cfg, driver, safe, say, opt.progress_every_s)
     if not_connected and not opt.dry_run:
         close_sections(sections)
         result.exit_code, result.error = EXIT_CONNECTION, f"vehicle: {not_connected}"
@@ -312,7 +314,8 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
         if opt.dry_run:
             for c in checks:
                 say(preflight.check_line(c))
-            cams, failed_open = await _open_for_dry_run(asm, opt.camera_open_timeout_s, say)
+            cams, failed_open = await _open_for_dry_run(asm, opt.camera_open_timeout_s, say,
+                                                        opt.progress_every_s)
             opened = list(cams)
             checks += failed_open
         else:
@@ -324,6 +327,9 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
                 return result
         if not not_connected:
             await _attach_truth(asm, opt.truth_wait_s if not virtual else 0.0)
+        compiled = compiling.summary()  # the kernels the parts compiled as they were built
+        if compiled:
+            say(compiled)
         result.header = header_lines(asm, virtual=virtual)
         if opt.on_header is not None:
             opt.on_header(result.header)

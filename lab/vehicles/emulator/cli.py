@@ -76,9 +76,10 @@ def _run(args: argparse.Namespace) -> int:
 
     extras.require("mavsdk", "sitl-vehicle")  # pymavlink: one line and exit 2 without it
     from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
-    from rich.console import Console
 
-    console = Console()
+    from eaglemission.commands import console as make_console
+
+    console = make_console()
     kw: dict[str, object] = {"speedup": args.speedup, "seed": args.seed,
                              "wind_ne_mps": tuple(args.wind), "params": _params(args.param)}
     if args.home:
