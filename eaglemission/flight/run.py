@@ -24,7 +24,6 @@ from eaglemission.errors import (
     EagleMissionError,
     PluginError,
 )
-from eaglemission.flight import preflight, progress
 from eaglemission.flight.assembly import (
     Assembly,
     assemble,
@@ -40,7 +39,8 @@ from eaglemission.flight.assembly import (
 from eaglemission.flight.context import SharedContext
 from eaglemission.flight.heap import frozen_heap
 from eaglemission.flight.interrupts import EXIT_INTERRUPTED, FlightInterrupts
-from eaglemission.flight.preflight import Check
+from eaglemission.flight.preflight import Check, check_line, unconnected_checks, verdict_line
+from eaglemission.flight.progress import TICK_S, CompileWatch, compile_progress, waiting
 from eaglemission.interfaces import (
     MissionHooks,
     MissionOutcome,
@@ -101,7 +101,7 @@ class FlightOptions:
     truth_wait_s: float = 3.0
     """How long to wait, after connecting, for the first ground-truth sample."""
     camera_open_timeout_s: float = 20.0
-    progress_every_s: float = progress.TICK_S
+    progress_every_s: float = TICK_S
     """How often a slow step before take-off (connecting, compiling) says it is still going."""
 
 
@@ -213,7 +213,7 @@ async def fly(cfg: MissionFile, options: FlightOptions | None = None) -> FlightR
 
 async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                say: Callable[[str], None], interrupts: FlightInterrupts) -> FlightResult:
-    with progress.compile_progress(say, opt.progress_every_s) as compiling:
+    with compile_progress(say, opt.progress_every_s) as compiling:
         result = await _fly_parts(cfg, opt, clock, say, interrupts, compiling)
         in_flight = compiling.compiled - compiling.reported
         if in_flight and result.outcome is not None:
@@ -240,7 +240,7 @@ async def _connect(cfg: MissionFile, driver: Any, safe: SafeVehicle,
     what = _vehicle_what(driver, cfg)
     say(f"connecting to {what}")
     try:  # connect first: an unreachable autopilot fails within its connect_timeout_s
-        with progress.waiting(say, what, every_s):
+        with waiting(say, what, every_s):
             await _bounded("vehicle.connect()", safe.connect(), connect_timeout_s + 5.0)
     except DriverError as exc:
         await _close_vehicle(safe)
@@ -258,19 +258,19 @@ async def _open_for_dry_run(asm: Assembly, timeout_s: float, say: Callable[[str]
     failed: list[Check] = []
     for cid, cam in asm.cameras.items():
         try:
-            with progress.waiting(say, f"camera {cid} to open", every_s):
+            with waiting(say, f"camera {cid} to open", every_s):
                 await _bounded(f"camera {cid!r}.open()", run_blocking(cam.open), timeout_s)
             opened[cid] = cam
         except Exception as exc:  # noqa: BLE001 - a vendor SDK may raise anything
             text = exc.detail if isinstance(exc, DriverError) and exc.detail else str(exc)
             failed.append((f"camera {cid}: open", False, _one_line(text)))
-            say(preflight.check_line(failed[-1]))
+            say(check_line(failed[-1]))
     return opened, failed
 
 
 async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                      say: Callable[[str], None], interrupts: FlightInterrupts,
-                     compiling: progress.CompileWatch) -> FlightResult:
+                     compiling: CompileWatch) -> FlightResult:
     virtual = clock.virtual
     wall0 = time.perf_counter()
     t0_ns = clock.now_ns()
@@ -295,7 +295,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
         result.exit_code, result.error = EXIT_CONNECTION, f"vehicle: {not_connected}"
         return result
     if not_connected:  # the dry run goes on: every other check is still worth knowing
-        checks += preflight.unconnected_checks(not_connected)
+        checks += unconnected_checks(not_connected)
     try:
         say("building the parts")
         asm = assemble(cfg, clock, vehicle=(driver, safe, shared), sections=sections)
@@ -313,7 +313,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
     try:
         if opt.dry_run:
             for c in checks:
-                say(preflight.check_line(c))
+                say(check_line(c))
             cams, failed_open = await _open_for_dry_run(asm, opt.camera_open_timeout_s, say,
                                                         opt.progress_every_s)
             opened = list(cams)
@@ -354,7 +354,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
             if not ok:
                 result.error = "preflight checks failed: " + "; ".join(
                     f"{n}: {d}" for n, p, d in result.checks if not p)
-            say(preflight.verdict_line(result.checks))
+            say(verdict_line(result.checks))
             return result
         if not flight_plan.simulated_vehicle and opt.confirm is not None:
             what = f"{cfg.vehicle.type} vehicle ({describe_part(asm.driver, cfg.vehicle.type)})"
