@@ -9,6 +9,7 @@ compiled on the loop's thread, a virtual-time loop that does not advance) still 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -110,9 +111,7 @@ class CompileWatch:
         return f"compiled {n} numba kernels in {t:.1f} s (cached for the next runs)"
 
 
-def _listener(watch: CompileWatch) -> Any:
-    from numba.core import event
-
+def _listener(watch: CompileWatch, event: Any) -> Any:
     class _Listener(event.Listener):  # type: ignore[misc]
         def on_start(self, ev: Any) -> None:
             disp = ev.data.get("dispatcher")
@@ -133,11 +132,11 @@ def compile_progress(say: Say, every_s: float = TICK_S) -> Iterator[CompileWatch
     and at the end how many kernels took how long (nothing when all came from the cache)."""
     watch = CompileWatch(say)
     try:
-        from numba.core import event
+        event: Any = importlib.import_module("numba.core.event")
     except ImportError:  # pragma: no cover - numba is a dependency
         yield watch
         return
-    listener = _listener(watch)
+    listener = _listener(watch, event)
     event.register("numba:compile", listener)
     try:
         with Ticker(say, watch.tick, every_s):

@@ -413,7 +413,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9
 
 
-def _one_line(exc: BaseException) -> str:
+def _one_line(exc: BaseException | str) -> str:
     return " ".join(str(exc).split())
 
 

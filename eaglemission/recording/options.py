@@ -148,6 +148,6 @@ def size_line(cfg: Any, options: RecordOptions, asm: Any) -> str:
     text = (f"recording {options.path}: {kind}, {len(px)} cameras ({sizes} px) at up to "
             f"{rate:g} frames/s: up to {_mb(per_s)} per second of flight, "
             f"{_mb(per_s * 60)} a minute")
-    if total is not None:
+    if total is not None and bound is not None:
         text += f", {_mb(total)} if the mission runs to its timeouts ({bound / 60:.0f} min)"
     return text
