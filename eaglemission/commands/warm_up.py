@@ -56,7 +56,8 @@ def _run(args: argparse.Namespace) -> int:
         f"estimators {cfg.estimators.coarse.type}/{cfg.estimators.fine.type}) by flying the "
         "embedded simulation with them")
     t0 = time.perf_counter()
-    with progress.compile_progress(say) as watch:
+    with progress.compile_progress(say) as watch, progress.Ticker(
+            say, lambda t: None if watch.busy else f"  flying the simulation ... {t:.0f} s"):
         result = fly_sync(cfg, FlightOptions(record_config=False))
         total = watch.compiled
     wall = time.perf_counter() - t0

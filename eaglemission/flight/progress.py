@@ -89,6 +89,12 @@ class CompileWatch:
                 self.compiled += 1
                 self.compile_s += time.monotonic() - self._started
 
+    @property
+    def busy(self) -> bool:
+        """A kernel is being compiled now."""
+        with self._lock:
+            return self._depth > 0
+
     def tick(self, _elapsed_s: float) -> str | None:
         with self._lock:
             if self.first_s is None:

@@ -287,3 +287,13 @@ def test_run_and_log_share_one_time_base(tmp_path: Path,
 
 def test_mission_file_helpers_are_valid() -> None:
     MissionFile.model_validate(_sim())
+
+
+def test_warm_up_flies_the_simulation_with_the_configs_kernels() -> None:
+    from eaglemission.commands.warm_up import warm_up_config
+
+    field = load_config(FIELD, check_plugins=False)
+    cfg = warm_up_config(field)
+    assert cfg.detector == field.detector and cfg.estimators == field.estimators
+    assert cfg.vehicle.type == "simulated"  # nothing real is touched
+    assert {cfg.cameras.wide.type, cfg.cameras.narrow.type} == {"synthetic"}
