@@ -285,7 +285,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
         driver, safe = build_vehicle(cfg, clock, shared, tap=record is not None)
     except (ConfigError, PluginError) as exc:
         close_sections(sections)
-        return FlightResult(EXIT_CONFIG, error=_one_line(exc), virtual=virtual,
+        return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual,
                             dry_run=opt.dry_run)
     result = FlightResult(EXIT_ERROR, virtual=virtual, dry_run=opt.dry_run)
     checks: list[Check] = []
@@ -302,7 +302,7 @@ async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock
     except (ConfigError, PluginError) as exc:
         await _close_vehicle(safe)
         close_sections(sections)
-        return FlightResult(EXIT_CONFIG, error=_one_line(exc), virtual=virtual,
+        return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual,
                             dry_run=opt.dry_run)
     except BaseException:
         await _close_vehicle(safe)

@@ -174,12 +174,13 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def check_mcap(path: str | Path) -> None:
-    """Raise ValueError (one line) unless ``path`` starts as an MCAP file: a JSON-lines
-    mission log, an image or an empty file is not a recording, and has nothing to recover."""
+    """Raise ValueError (one line) unless ``path`` starts as an MCAP file (its magic, whole or
+    cut short): a JSON-lines mission log, an image or an empty file is not a recording, and
+    has nothing to recover."""
     with open(path, "rb") as fh:
         head = fh.read(len(MCAP_MAGIC))
-    if head == MCAP_MAGIC:
-        return
+    if head and MCAP_MAGIC.startswith(head):
+        return  # the magic, or a recording cut inside it: read as cut short
     if not head:
         raise ValueError("empty file: not an MCAP recording, nothing to read or recover")
     hint = (": a JSON-lines mission log (run --log) is read as text"
