@@ -11,6 +11,20 @@ from eaglemission import __version__
 from eaglemission.errors import EagleMissionError
 
 
+class _LogFormat(logging.Formatter):
+    """``warning: message``, as the commands' own lines; with ``-v`` timestamped, with the
+    logger's name."""
+
+    def __init__(self, *, timestamps: bool) -> None:
+        super().__init__("%(asctime)s %(levelname)s %(name)s: %(message)s" if timestamps
+                         else "%(message)s")
+        self.timestamps = timestamps
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        return text if self.timestamps else f"{record.levelname.lower()}: {text}"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="eaglemission",
@@ -35,10 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING - 10 * min(args.verbose, 2),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    handler = logging.StreamHandler()
+    handler.setFormatter(_LogFormat(timestamps=args.verbose > 0))
+    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2), handlers=[handler])
     if getattr(args, "_unavailable", None):
         print(args._unavailable, file=sys.stderr)
         return 3

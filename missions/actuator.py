@@ -212,8 +212,8 @@ class Actuator:
         self.failsafe_warnings.extend(warnings)
         self.log.write("failsafe_params", available=True, values=rep.values, flown=flown,
                        missing=sorted(rep.missing), warnings=warnings)
-        for w in warnings:
-            log.warning("PX4 failsafe parameters: %s", w)
+        for w in warnings:  # the run's summary shows them (report_lines): once, there
+            log.info("PX4 failsafe parameters: %s", w)
 
     async def restore_autopilot(self) -> None:
         """Restore what :meth:`guard_autopilot` set (after landing; idempotent)."""

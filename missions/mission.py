@@ -146,6 +146,20 @@ class ApproachMission:
     description = ("approach-to-grasp: cruise, wide-camera coarse approach, narrow-camera "
                    "RPnP fine approach, grasp-ready hold (paper Sec. 3.2)")
 
+    @staticmethod
+    def recorded_rate_hz(config: ApproachConfig) -> float:
+        """Frames a camera records per second, at most: its loop's processing rate."""
+        return float(config.process_rate_hz)
+
+    @staticmethod
+    def max_flight_s(config: ApproachConfig) -> float:
+        """The longest flight the state timeouts allow (each state to its timeout, then the
+        settle time): the bound of the recording's expected size."""
+        t = config.timeouts
+        return float(t.preflight_s + t.takeoff_s + t.cruise_s + t.coarse_approach_s
+                     + t.fine_approach_s + t.grasp_ready_s + t.target_lost_s
+                     + config.settle_timeout_s)
+
     def __init__(self, config: ApproachConfig | None = None, *, parts: FlightParts,
                  hooks: MissionHooks | None = None, **_context: Any) -> None:
         self.config = config or ApproachConfig()

@@ -441,7 +441,7 @@ class MissionRunner:
 
     # -- main ----------------------------------------------------------------------------------
     async def run(self) -> MissionResult:
-        self.log.write("start", config_state=self.machine.state.value,
+        self.log.write("start", t0_ns=self._t0_ns, config_state=self.machine.state.value,
                        params=self.p.model_dump(), cameras=list(self.cameras))
         self.log.write("config", **config_record(self.cfg))
 

@@ -266,6 +266,7 @@ class GenICamCamera:
 
     description = "GenICam camera through harvesters/GenTL (Basler USB3 Vision, ...)"
     wall_clock = True  # a real device: frames arrive in host time
+    extra = "genicam"  # harvesters + genicam (eaglemission.extras)
 
     class Config(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

@@ -7,13 +7,19 @@ standoff keeps the target in the fixed cameras' view).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
+from importlib import resources
 from importlib.metadata import entry_points
+from pathlib import Path
 
 from eaglemission import registry
 from eaglemission.config import MissionFile
 from eaglemission.errors import ConfigError, PluginError
 from eaglemission.interfaces import World
+from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
+
+CAMERAS = (CAMERA_WIDE, CAMERA_NARROW)
 
 Check = Callable[[MissionFile], list[str]]
 
@@ -79,3 +85,60 @@ def run_checks(cfg: MissionFile) -> list[str]:
         except Exception as exc:  # a broken check must not hide the others
             problems.append(f"<check {ep.name}>: failed: {type(exc).__name__}: {exc}")
     return problems
+
+
+PLACEHOLDER_SERIAL = re.compile(r"^(4000000\d|0+|1234\d*|x+|serial.*|changeme)$", re.IGNORECASE)
+"""Serial numbers that stand for "fill in yours" (the field template's 40000001/40000002)."""
+
+
+def _shipped(path: str | None) -> bool:
+    """True for a file shipped with eaglemission's example configs (the simulator's), where
+    it is or copied next to a copy of the template (same name, same bytes)."""
+    if not path:
+        return False
+    shipped = Path(str(resources.files("eaglemission.configs"))).resolve()
+    p = Path(path)
+    try:
+        if p.resolve().is_relative_to(shipped):
+            return True
+        twin = shipped / p.parent.name / p.name
+        return twin.is_file() and p.is_file() and twin.read_bytes() == p.read_bytes()
+    except OSError:
+        return False
+
+
+def hardware_warnings(cfg: MissionFile) -> list[str]:
+    """What a mission file for real cameras still has from the template (warnings, not
+    problems: it is valid, but would fly with someone else's numbers): placeholder serial
+    numbers, no or a missing or a shipped nominal calibration file, the simulator's example
+    target image."""
+    out: list[str] = []
+    hardware = []
+    for cid in CAMERAS:
+        section = getattr(cfg.cameras, cid)
+        try:
+            cls = registry.get("cameras", section.type)
+        except PluginError:
+            continue  # reported by the plugin check
+        if getattr(cls, "wall_clock", False) and not getattr(cls, "simulated", False):
+            hardware.append((cid, section))
+    for cid, cam in hardware:
+        serial = cam.params.get("serial_number")
+        if serial is not None and PLACEHOLDER_SERIAL.match(str(serial)):
+            out.append(f"cameras.{cid}.params.serial_number: {serial!r} is a placeholder: put "
+                       "your camera's serial number (its label, or pylon Viewer)")
+        cal = cam.calibration_file
+        if cal is None:
+            out.append(f"cameras.{cid}.calibration_file: none: the lens' nominal intrinsics "
+                       "are used; calibrate the camera")
+        elif not Path(cal).is_file():
+            out.append(f"cameras.{cid}.calibration_file: {cal} not found: calibrate the "
+                       "camera and give its file")
+        elif _shipped(cal):
+            out.append(f"cameras.{cid}.calibration_file: {cal} is the nominal example shipped "
+                       "with eaglemission: calibrate your camera")
+    image = cfg.target.appearance_image
+    if hardware and _shipped(image):
+        out.append(f"target.appearance_image: {image} is the simulator's example target: use a "
+                   "photo of your own target (or remove the key)")
+    return out

@@ -41,9 +41,10 @@ def plot(path: str, out: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from eaglemission.recording.mcap_reader import recover_all, summarize
+    from eaglemission.recording.mcap_reader import check_mcap, recover_all, summarize
 
     try:
+        check_mcap(args.file)
         if args.recover:
             for rec in recover_all(args.file, args.output):
                 print(rec.line())

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from rich.console import Console
 from rich.table import Table
 
 from eaglemission import registry
@@ -17,7 +16,9 @@ def _add(p: argparse.ArgumentParser) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    console = Console()
+    from eaglemission.commands import console as make_console
+
+    console = make_console()
     table = Table(title="eaglemission plugins")
     table.add_column("role")
     table.add_column("name (config `type`)")

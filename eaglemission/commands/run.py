@@ -163,16 +163,16 @@ def _live_options(args: argparse.Namespace, section: Any) -> Any:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
+    from eaglemission import extras
+    from eaglemission.commands import console as make_console
     from eaglemission.commands.checks import run_checks
     from eaglemission.config import MissionFile, load_config
     from eaglemission.errors import ConfigError, EagleMissionError
     from eaglemission.flight import assembly, run
     from eaglemission.interfaces import MissionHooks
 
-    console = Console()
-    err = Console(stderr=True)
+    console = make_console()
+    err = make_console(stderr=True)
     try:
         cfg = load_config(args.config)
         problems = run_checks(cfg)
@@ -190,11 +190,24 @@ def _run(args: argparse.Namespace) -> int:
         data["recording"]["quality"] = args.record_quality
     try:
         live_options = _live_options(args, cfg.live)
-    except ValueError as exc:
+        if live_options is not None:
+            extras.require("live", "run --live (or the config's live section)")
+        if args.vehicle == "emulator":
+            extras.require("mavsdk", "run --vehicle emulator")
+        extras.require_for(assembly.part_classes(MissionFile.model_validate(data)))
+    except (ValueError, extras.MissingExtra) as exc:
         _print(err, f"error: {exc}")
         return run.EXIT_CONFIG
+    from eaglemission.commands.checks import hardware_warnings
+
+    for w in hardware_warnings(MissionFile.model_validate(data)):
+        _print(err, f"warning: {w}")
     source = args.config or "<embedded sitl_synthetic.yaml>"
-    _print(console, f"eaglemission run {source}")
+    _print(console, f"eaglemission run {source}" + (" --dry-run (checks only: nothing is armed)"
+                                                    if args.dry_run else ""))
+    if args.record_lossless:
+        _print(console, "--record-lossless: PNG frames, about 10 times the size of a JPEG "
+                        "recording (the expected size is said before take-off)")
 
     def on_header(lines: list[str]) -> None:
         for line in lines:
@@ -292,11 +305,22 @@ def _run(args: argparse.Namespace) -> int:
                f"{lv['bytes'] / 1e6:.2f} MB) published, {lv['throttled']} throttled, "
                f"{lv['dropped']} dropped, {lv['errors']} errors"
                + (f" ({lv['error']})" if lv["error"] else ""))
-    if result.error:
+    if result.error and not result.dry_run:  # the dry run's checks said it, line by line
         _print(err, f"error: {result.error}")
-    _print(console, f"exit {result.exit_code} ({EXIT_NAMES.get(result.exit_code, '?')}) after "
+    elif result.error and result.exit_code not in (run.EXIT_DONE, run.EXIT_PREFLIGHT):
+        _print(err, f"error: {result.error}")
+    _print(console, f"exit {result.exit_code} ({exit_name(result)}) after "
                     f"{time.perf_counter() - t0:.1f} s")
     return result.exit_code
+
+
+def exit_name(result: Any) -> str:
+    """What the exit code means for this run: a dry run never says DONE."""
+    if result.dry_run and result.exit_code == 0:
+        return "dry run passed: nothing armed"
+    if result.dry_run and result.exit_code == 5:
+        return "dry run failed: nothing armed"
+    return EXIT_NAMES.get(result.exit_code, "?")
 
 
 EXIT_NAMES = {0: "DONE", 1: "error", 2: "config refused", 3: "FAILSAFE",

@@ -21,6 +21,8 @@ def _run(args: argparse.Namespace) -> int:
         problems = plugin_problems(cfg) + checks.run_checks(cfg)
         if problems:
             raise ConfigError(problems, source=args.config or "<embedded>")
+        for w in checks.hardware_warnings(cfg):
+            print(f"warning: {w}", file=sys.stderr)
     except ConfigError as exc:
         print(f"invalid: {exc}", file=sys.stderr)
         return 2

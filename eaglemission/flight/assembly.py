@@ -72,6 +72,14 @@ def _plugin_classes(cfg: MissionFile) -> dict[str, type]:
     return out
 
 
+def part_classes(cfg: MissionFile) -> list[tuple[str, type]]:
+    """``("vehicle.type mavsdk", plugin class)`` of the vehicle and each camera: what
+    :func:`eaglemission.extras.require_for` checks before anything is built."""
+    names = {"vehicle": cfg.vehicle.type}
+    names.update({f"cameras.{cid}": getattr(cfg.cameras, cid).type for cid in CAMERAS})
+    return [(f"{k}.type {names[k]}", c) for k, c in _plugin_classes(cfg).items()]
+
+
 def plan(cfg: MissionFile) -> FlightPlan:
     classes = _plugin_classes(cfg)
     wall = any(bool(getattr(c, "wall_clock", False)) for c in classes.values())

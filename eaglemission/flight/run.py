@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from eaglemission import registry
+from eaglemission import extras, registry
 from eaglemission.clock import BoundLoopClock, run_blocking, run_virtual
 from eaglemission.config import MissionFile
 from eaglemission.errors import (
@@ -32,12 +32,15 @@ from eaglemission.flight.assembly import (
     describe_part,
     header_lines,
     load_sections,
+    part_classes,
     plan,
     prepared,
 )
 from eaglemission.flight.context import SharedContext
 from eaglemission.flight.heap import frozen_heap
 from eaglemission.flight.interrupts import EXIT_INTERRUPTED, FlightInterrupts
+from eaglemission.flight.preflight import Check, check_line, unconnected_checks, verdict_line
+from eaglemission.flight.progress import TICK_S, CompileWatch, compile_progress, waiting
 from eaglemission.interfaces import (
     MissionHooks,
     MissionOutcome,
@@ -98,6 +101,8 @@ class FlightOptions:
     truth_wait_s: float = 3.0
     """How long to wait, after connecting, for the first ground-truth sample."""
     camera_open_timeout_s: float = 20.0
+    progress_every_s: float = TICK_S
+    """How often a slow step before take-off (connecting, compiling) says it is still going."""
 
 
 @dataclass
@@ -115,6 +120,8 @@ class FlightResult:
     recording: dict[str, Any] | None = None
     """The MCAP recorder's counts (frames written and dropped, write errors, bytes)."""
     live: dict[str, Any] | None = None
+    dry_run: bool = False
+    """Checked only: nothing armed, nothing flown (its exit line says so, never DONE)."""
 
 
 def exit_code_for(outcome: MissionOutcome | None, *, interrupted: bool) -> int:
@@ -148,13 +155,14 @@ async def _open_cameras(asm: Assembly, timeout_s: float) -> None:
                               f"{type(exc).__name__}: {exc}") from exc
 
 
-async def _close_all(asm: Assembly, opened: list[str]) -> None:
+async def _close_all(asm: Assembly, opened: list[str], *, close_vehicle: bool = True) -> None:
     for cid in opened:
         try:
             await _bounded(f"camera {cid!r}.close()", run_blocking(asm.cameras[cid].close), 10.0)
         except Exception as exc:  # noqa: BLE001 - closing must go on
             log.warning("camera %s: close failed: %s", cid, exc)
-    await _close_vehicle(asm.vehicle)
+    if close_vehicle:  # one that did not connect was closed then
+        await _close_vehicle(asm.vehicle)
     close_sections(asm.sections)  # after the vehicle: a relay outlives the link it carries
 
 
@@ -205,6 +213,64 @@ async def fly(cfg: MissionFile, options: FlightOptions | None = None) -> FlightR
 
 async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                say: Callable[[str], None], interrupts: FlightInterrupts) -> FlightResult:
+    with compile_progress(say, opt.progress_every_s) as compiling:
+        result = await _fly_parts(cfg, opt, clock, say, interrupts, compiling)
+        in_flight = compiling.compiled - compiling.reported
+        if in_flight and result.outcome is not None:
+            compiling.reported = compiling.compiled
+            say(f"compiled {in_flight} numba kernels during the flight: run "
+                "`eaglemission warm-up` once after installing, before a real flight")
+        return result
+
+
+def _vehicle_what(driver: Any, cfg: MissionFile) -> str:
+    url = getattr(getattr(driver, "config", None), "url", None)
+    return f"the autopilot on {url}" if url else f"the {cfg.vehicle.type} vehicle"
+
+
+def _connection_error(exc: DriverError) -> str:
+    """One line: why the vehicle did not connect and the fix (the driver's detail)."""
+    return _one_line(exc.detail) if exc.detail else _one_line(exc)
+
+
+async def _connect(cfg: MissionFile, driver: Any, safe: SafeVehicle,
+                   say: Callable[[str], None], every_s: float) -> str:
+    """Connect the vehicle, saying how long it has waited; '' or why it did not connect."""
+    connect_timeout_s = float(getattr(driver.config, "connect_timeout_s", 30.0))
+    what = _vehicle_what(driver, cfg)
+    say(f"connecting to {what}")
+    try:  # connect first: an unreachable autopilot fails within its connect_timeout_s
+        with waiting(say, what, every_s):
+            await _bounded("vehicle.connect()", safe.connect(), connect_timeout_s + 5.0)
+    except DriverError as exc:
+        await _close_vehicle(safe)
+        return _connection_error(exc)
+    except asyncio.CancelledError:
+        await _close_vehicle(safe)
+        raise
+    return ""
+
+
+async def _open_for_dry_run(asm: Assembly, timeout_s: float, say: Callable[[str], None],
+                            every_s: float) -> tuple[dict[str, Any], list[Check]]:
+    """Open each camera (a failure is a failed check, the others still open)."""
+    opened: dict[str, Any] = {}
+    failed: list[Check] = []
+    for cid, cam in asm.cameras.items():
+        try:
+            with waiting(say, f"camera {cid} to open", every_s):
+                await _bounded(f"camera {cid!r}.open()", run_blocking(cam.open), timeout_s)
+            opened[cid] = cam
+        except Exception as exc:  # noqa: BLE001 - a vendor SDK may raise anything
+            text = exc.detail if isinstance(exc, DriverError) and exc.detail else str(exc)
+            failed.append((f"camera {cid}: open", False, _one_line(text)))
+            say(check_line(failed[-1]))
+    return opened, failed
+
+
+async def _fly_parts(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
+                     say: Callable[[str], None], interrupts: FlightInterrupts,
+                     compiling: CompileWatch) -> FlightResult:
     virtual = clock.virtual
     wall0 = time.perf_counter()
     t0_ns = clock.now_ns()
@@ -212,32 +278,32 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
     sections: list[Section] = []
     try:
         flight_plan = plan(cfg)
+        extras.require_for(part_classes(cfg))
         record = mcap_options.planned(cfg, opt.record, use_config=opt.record_config)
         sections = load_sections(cfg)
         cfg = prepared(cfg, sections)
         driver, safe = build_vehicle(cfg, clock, shared, tap=record is not None)
     except (ConfigError, PluginError) as exc:
         close_sections(sections)
-        return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual)
-    result = FlightResult(EXIT_ERROR, virtual=virtual)
-    connect_timeout_s = float(getattr(driver.config, "connect_timeout_s", 30.0))
-    try:  # connect first: an unreachable autopilot fails within its connect_timeout_s
-        await _bounded("vehicle.connect()", safe.connect(), connect_timeout_s + 5.0)
-    except DriverError as exc:
-        await _close_vehicle(safe)
+        return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual,
+                            dry_run=opt.dry_run)
+    result = FlightResult(EXIT_ERROR, virtual=virtual, dry_run=opt.dry_run)
+    checks: list[Check] = []
+    not_connected = await _connect(cfg, driver, safe, say, opt.progress_every_s)
+    if not_connected and not opt.dry_run:
         close_sections(sections)
-        result.exit_code, result.error = EXIT_CONNECTION, _one_line(exc)
+        result.exit_code, result.error = EXIT_CONNECTION, f"vehicle: {not_connected}"
         return result
-    except asyncio.CancelledError:
-        await _close_vehicle(safe)
-        close_sections(sections)
-        raise
+    if not_connected:  # the dry run goes on: every other check is still worth knowing
+        checks += unconnected_checks(not_connected)
     try:
+        say("building the parts")
         asm = assemble(cfg, clock, vehicle=(driver, safe, shared), sections=sections)
     except (ConfigError, PluginError) as exc:
         await _close_vehicle(safe)
         close_sections(sections)
-        return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual)
+        return FlightResult(EXIT_CONFIG, error=str(exc), virtual=virtual,
+                            dry_run=opt.dry_run)
     except BaseException:
         await _close_vehicle(safe)
         close_sections(sections)
@@ -245,32 +311,50 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
     opened: list[str] = []
     sink = None
     try:
-        try:
-            await _open_cameras(asm, opt.camera_open_timeout_s)
-            opened = list(asm.cameras)
-        except (DriverError, ConfigError) as exc:
-            result.exit_code, result.error = EXIT_CONNECTION, _one_line(exc)
-            return result
-        await _attach_truth(asm, opt.truth_wait_s if not virtual else 0.0)
+        if opt.dry_run:
+            for c in checks:
+                say(check_line(c))
+            cams, failed_open = await _open_for_dry_run(asm, opt.camera_open_timeout_s, say,
+                                                        opt.progress_every_s)
+            opened = list(cams)
+            checks += failed_open
+        else:
+            try:
+                await _open_cameras(asm, opt.camera_open_timeout_s)
+                opened = list(asm.cameras)
+            except (DriverError, ConfigError) as exc:
+                result.exit_code, result.error = EXIT_CONNECTION, _one_line(exc)
+                return result
+        if not not_connected:
+            await _attach_truth(asm, opt.truth_wait_s if not virtual else 0.0)
+        compiled = compiling.summary()  # the kernels the parts compiled as they were built
+        if compiled:
+            say(compiled)
         result.header = header_lines(asm, virtual=virtual)
         if opt.on_header is not None:
             opt.on_header(result.header)
+        if record is not None:
+            say(mcap_options.size_line(cfg, record, asm))
         disk = None if record is None else mcap_options.disk_check(record, say)
         sink, live_check = live.start(opt.live, say)
         sink_checks = [c for c in (disk, live_check) if c is not None]
         failed = [c for c in sink_checks if not c[1]]
         if failed and not opt.dry_run:
-            result.exit_code, result.error = EXIT_PREFLIGHT, f"{failed[0][0]}: {failed[0][2]}"
+            result.exit_code = EXIT_PREFLIGHT
+            result.error = "; ".join(f"{n}: {d}" for n, _, d in failed)
             return result
         if opt.dry_run:
             from eaglemission.flight.preflight import dry_run_checks
 
-            result.checks = await dry_run_checks(asm, say) + sink_checks
+            cams = {cid: asm.cameras[cid] for cid in opened}
+            result.checks = checks + await dry_run_checks(
+                asm, say, cameras=cams, connected=not not_connected) + sink_checks
             ok = all(passed for _, passed, _ in result.checks)
             result.exit_code = EXIT_DONE if ok else EXIT_PREFLIGHT
             if not ok:
                 result.error = "preflight checks failed: " + "; ".join(
                     f"{n}: {d}" for n, p, d in result.checks if not p)
+            say(verdict_line(result.checks))
             return result
         if not flight_plan.simulated_vehicle and opt.confirm is not None:
             what = f"{cfg.vehicle.type} vehicle ({describe_part(asm.driver, cfg.vehicle.type)})"
@@ -301,6 +385,9 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
                             asm.clock.now_ns())
         mission = registry.load("missions", cfg.mission.type, cfg.mission.params,
                                 parts=asm.parts(realtime=not virtual), hooks=hooks)
+        compiled = compiling.summary()  # before take-off; the rest would compile in flight
+        if compiled:
+            say(compiled)
         interrupts.mission = mission
         interrupts.mission_task = task = asyncio.ensure_future(mission.run())
         try:
@@ -320,13 +407,13 @@ async def _fly(cfg: MissionFile, opt: FlightOptions, clock: BoundLoopClock,
         return result
     finally:
         await autopilot_guard.after_flight(asm.guard, asm.vehicle, say)
-        await _close_all(asm, opened)
+        await _close_all(asm, opened, close_vehicle=not not_connected)
         result.live = live.stop(sink)
         result.wall_s = time.perf_counter() - wall0
         result.sim_s = (clock.now_ns() - t0_ns) * 1e-9
 
 
-def _one_line(exc: BaseException) -> str:
+def _one_line(exc: BaseException | str) -> str:
     return " ".join(str(exc).split())
 
 

@@ -169,6 +169,26 @@ def recover_all(source: str | Path, output: str | Path | None = None) -> list[Re
             for k, part in enumerate(parts_of(src))]
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The first 8 bytes of every MCAP file (the MCAP specification's magic)."""
+
+
+def check_mcap(path: str | Path) -> None:
+    """Raise ValueError (one line) unless ``path`` starts as an MCAP file (its magic, whole or
+    cut short): a JSON-lines mission log, an image or an empty file is not a recording, and
+    has nothing to recover."""
+    with open(path, "rb") as fh:
+        head = fh.read(len(MCAP_MAGIC))
+    if head and MCAP_MAGIC.startswith(head):
+        return  # the magic, or a recording cut inside it: read as cut short
+    if not head:
+        raise ValueError("empty file: not an MCAP recording, nothing to read or recover")
+    hint = (": a JSON-lines mission log (run --log) is read as text"
+            if head.lstrip().startswith(b"{") else "")
+    raise ValueError(f"not an MCAP recording (no MCAP magic at its start){hint}; give a file "
+                     "written by run --record FILE.mcap")
+
+
 def parts_of(path: str | Path) -> list[Path]:
     """The files of a recording: ``NAME.mcap`` and, when it was split (``recording.split_mb``),
     ``NAME.001.mcap``, ``NAME.002.mcap``... as long as they follow each other."""
@@ -220,11 +240,16 @@ def summarize(path: str | Path) -> list[str]:
     stats: dict[str, Any] = {}
     counts: Counter[str] = Counter()
     st = Scan()
+    t0_ns: int | None = None  # the mission's start: state times as `run` and `replay` print them
     for topic, rec in messages(path, st):
         counts[topic] += 1
-        if topic == "/log/state":
+        if topic == "/log/start" and t0_ns is None:
             r = json.loads(rec.data)
-            states.append(f"  {r['t_s']:8.2f} s  {r['old']} -> {r['new']} ({r['reason']})")
+            t0_ns = int(r.get("t0_ns", r["t_ns"]))
+        elif topic == "/log/state":
+            r = json.loads(rec.data)
+            t_s = r["t_s"] if t0_ns is None else (int(r["t_ns"]) - t0_ns) * 1e-9
+            states.append(f"  {t_s:8.2f} s  {r['old']} -> {r['new']} ({r['reason']})")
         elif topic == "/recorder/stats":
             stats = json.loads(rec.data)
     head = "complete" if st.complete else "NO FOOTER (cut short: log --recover)"
@@ -234,7 +259,8 @@ def summarize(path: str | Path) -> list[str]:
                f"{path}: {head}, {sum(counts.values())} messages in {st.chunks} chunks")
     out += [f"  {n:7d}  {t}" for t, n in sorted(counts.items())]
     if states:
-        out.append("state changes:")
+        out.append("state changes (s since the mission's start):" if t0_ns is not None
+                   else "state changes (mission clock, s):")
         out += states
     cams = stats.pop("cameras", None) or {}
     if stats:

@@ -96,3 +96,58 @@ def _disk_check(options: RecordOptions) -> tuple[str, bool, str]:
         detail = (f"only {free_mb:.0f} MB free at {where}, below recording.min_free_mb "
                   f"{options.min_free_mb:g}: free space there or record elsewhere")
     return ("recording: disk space", ok, detail)
+
+
+JPEG_BYTES_PER_PX_Q75 = 0.21
+"""Recorded bytes per pixel of a JPEG frame at quality 75 (the simulated scenes at 1280x960:
+262 kB a frame, log records included)."""
+PNG_BYTES_PER_PX = 2.0
+"""Recorded bytes per pixel of a lossless (PNG) frame of the same scenes: about 10x JPEG."""
+_JPEG_SCALE = ((1, 0.3), (50, 0.65), (75, 1.0), (85, 1.35), (90, 1.7), (95, 2.5), (100, 5.5))
+"""JPEG size relative to quality 75 (libjpeg's usual curve), interpolated."""
+
+
+def bytes_per_px(options: RecordOptions) -> float:
+    if options.lossless:
+        return PNG_BYTES_PER_PX
+    q = min(100, max(1, options.jpeg_quality))
+    for (q0, s0), (q1, s1) in zip(_JPEG_SCALE, _JPEG_SCALE[1:], strict=False):
+        if q <= q1:
+            return JPEG_BYTES_PER_PX_Q75 * (s0 + (s1 - s0) * (q - q0) / (q1 - q0))
+    return JPEG_BYTES_PER_PX_Q75 * _JPEG_SCALE[-1][1]
+
+
+def expected_size(options: RecordOptions, frame_px: list[int], frames_per_s: float,
+                  flight_bound_s: float | None) -> tuple[float, float | None]:
+    """``(MB per second of flight, MB for the longest flight)``: every camera recorded at up to
+    ``frames_per_s``, ``frame_px`` pixels a frame (pure; an upper estimate)."""
+    per_s = sum(frame_px) * frames_per_s * bytes_per_px(options) / 1e6
+    return per_s, None if flight_bound_s is None else per_s * flight_bound_s
+
+
+def _mb(mb: float) -> str:
+    return f"{mb / 1000:.1f} GB" if mb >= 1000 else f"{mb:.0f} MB"
+
+
+def size_line(cfg: Any, options: RecordOptions, asm: Any) -> str:
+    """The line said before take-off: the recording's expected size, from the cameras'
+    resolution, the mission's frame rate (its plugin's ``recorded_rate_hz(config)``), JPEG or
+    PNG, and the longest flight the mission allows (its plugin's ``max_flight_s(config)``)."""
+    from eaglemission import registry
+
+    px = [int(c.model.width_px) * int(c.model.height_px) for c in asm.cameras.values()]
+    cls = registry.get("missions", cfg.mission.type)
+    params = registry.validate_params("missions", cfg.mission.type, cfg.mission.params,
+                                      path="mission.params")
+    rate_fn, bound_fn = getattr(cls, "recorded_rate_hz", None), getattr(cls, "max_flight_s", None)
+    rate = float(rate_fn(params)) if callable(rate_fn) else 10.0
+    bound = float(bound_fn(params)) if callable(bound_fn) else None
+    per_s, total = expected_size(options, px, rate, bound)
+    sizes = ", ".join(f"{c.model.width_px}x{c.model.height_px}" for c in asm.cameras.values())
+    kind = "PNG (lossless, about 10x JPEG)" if options.lossless else f"JPEG q{options.jpeg_quality}"
+    text = (f"recording {options.path}: {kind}, {len(px)} cameras ({sizes} px) at up to "
+            f"{rate:g} frames/s: up to {_mb(per_s)} per second of flight, "
+            f"{_mb(per_s * 60)} a minute")
+    if total is not None and bound is not None:
+        text += f", {_mb(total)} if the mission runs to its timeouts ({bound / 60:.0f} min)"
+    return text

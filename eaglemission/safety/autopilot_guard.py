@@ -29,7 +29,7 @@ limits a little: recorded climb 2.09 m/s peak for a 1.15 m/s mean)."""
 
 _VERTICAL = ("MPC_Z_V_AUTO_UP", "MPC_Z_V_AUTO_DN", "MPC_TKO_SPEED", "MPC_LAND_SPEED",
              "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN")
-_HORIZONTAL = ("MPC_XY_CRUISE",)
+_HORIZONTAL = ("MPC_XY_CRUISE", "MPC_XY_VEL_MAX")
 REPORTED_ONLY = {
     "RTL_CONE_ANG": "only lowers the return height near home",
     "COM_OF_LOSS_T": "offboard-loss delay (the mission's watchdog acts first)",
@@ -64,8 +64,9 @@ def plan(values: dict[str, float], safety: SafetyConfig, cruise_altitude_m: floa
     RTL_RETURN_ALT outside ``[min_altitude_m, max_altitude_m]`` (with ``align_return`` any
     value other than the mission's return height, :func:`return_altitude_m`); RTL_DESCEND_ALT
     above that height (PX4 returns at least at RTL_DESCEND_ALT); vertical autopilot speeds
-    above ``max_vertical_speed_mps``, MPC_XY_CRUISE (the return leg) above
-    ``max_horizontal_speed_mps``: set to :data:`SPEED_MARGIN` of the limit."""
+    above ``max_vertical_speed_mps``, MPC_XY_CRUISE (the return leg) and MPC_XY_VEL_MAX (every
+    horizontal move, offboard included) above ``max_horizontal_speed_mps``: set to
+    :data:`SPEED_MARGIN` of the limit."""
     out: list[ParamChange] = []
     s = safety
     rtl_want = return_altitude_m(cruise_altitude_m, s)

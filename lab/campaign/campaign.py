@@ -208,10 +208,11 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
 
 
 def print_summary(summary: CampaignSummary) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    c = Console()
+    from eaglemission.commands import console
+
+    c = console()
     c.print(f"[bold]runs[/bold]: {summary.n}   [bold]success[/bold]: "
             f"{summary.success_rate:.0%}   [bold]envelope violations[/bold]: {summary.violations}")
     t = Table(title="distribution over runs that reached GRASP_READY")
@@ -231,4 +232,4 @@ def print_summary(summary: CampaignSummary) -> None:
     fails = [r for r in summary.runs if not r["success"]]
     for r in fails:
         c.print(f"  run {r['run']}: {r.get('final_state', '?')} -- {r['explanation']} "
-                f"(ended safe: {r.get('ended_safe')})")
+                f"(ended safe: {r.get('ended_safe')})", markup=False)

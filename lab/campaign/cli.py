@@ -28,7 +28,10 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--address", metavar="ADDR", help="Ray cluster to run on (--executor ray; "
                    "default: a local Ray with --workers CPUs)")
     p.add_argument("--faults", metavar="KINDS", help="inject one fault per run: 'all' or "
-                   "kind1,kind2 (docs/faults.md); exit 1 when a run misses its expected outcome")
+                   "kind1,kind2 (docs/faults.md)")
+    p.add_argument("--require", metavar="FRACTION", type=float, default=None,
+                   help="exit 0 when at least this fraction of the runs reach their expected "
+                   "outcome (default: every run must; exit 1 otherwise)")
     p.add_argument("--ground-images", metavar="DIR", help="draw each run's ground from the "
                    "NAME.jpg|png photos of DIR, each with NAME.yaml holding m_per_px")
     p.add_argument("--vehicle", choices=("simulated", "emulator"), default="simulated",
@@ -72,8 +75,21 @@ def _campaign(args: argparse.Namespace) -> int:
     from eaglemission.lab.campaign.faults import parse_kinds, print_fault_table
     from eaglemission.lab.campaign.resume import CampaignResumeError
 
+    from eaglemission import extras
+
     if args.runs < 1:
         print("error: --runs must be >= 1", file=sys.stderr)
+        return 2
+    if args.require is not None and not 0.0 <= args.require <= 1.0:
+        print(f"error: --require {args.require:g}: a fraction of the runs, 0..1", file=sys.stderr)
+        return 2
+    try:
+        if args.executor == "ray":
+            extras.require("ray", "campaign --executor ray")
+        if args.vehicle == "emulator":
+            extras.require("mavsdk", "campaign --vehicle emulator")
+    except extras.MissingExtra as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     kinds = None
     if args.faults is not None:
@@ -108,8 +124,25 @@ def _campaign(args: argparse.Namespace) -> int:
         return 2
     print_summary(summary)
     if kinds is not None:
-        return 1 if print_fault_table(summary.runs) else 0
-    return 0
+        missed = print_fault_table(summary.runs)
+    else:  # no fault injected: every run is expected to succeed
+        missed = sum(not r["success"] for r in summary.runs)
+    return verdict(len(summary.runs), missed, args.require)
+
+
+def verdict(runs: int, missed: int, require: float | None) -> int:
+    """The campaign's exit code: 0 when every run reached its expected outcome, or when
+    ``require`` is given and at least that fraction did; 1 otherwise (the line says which)."""
+    met = runs - missed
+    if require is None:
+        ok = missed == 0
+        rule = "every run must"
+    else:
+        ok = runs > 0 and met / runs >= require - 1e-12
+        rule = f"--require {require:g}"
+    print(f"{'passed' if ok else 'FAILED'}: {met}/{runs} runs reached their expected outcome "
+          f"({rule})", file=sys.stdout if ok else sys.stderr)
+    return 0 if ok else 1
 
 
 CAMPAIGN_COMMAND = Command("randomised simulation campaign with the evaluator's statistics",

@@ -168,6 +168,8 @@ def print_fault_table(runs: list[dict[str, Any]]) -> int:
     from rich.console import Console
     from rich.table import Table
 
+    from eaglemission.commands import console
+
     rows = fault_table(runs)
     t = Table(title="per fault kind")
     for col in ("fault", "runs", "expected", "end states", "as expected", "time to safe "
@@ -180,7 +182,9 @@ def print_fault_table(runs: list[dict[str, Any]]) -> int:
                   ", ".join(f"{k} {v}" for k, v in sorted(r["end_states"].items())),
                   f"{r['matches']}/{r['runs']}", safe, str(r["violations"]),
                   f"{r['log_complete']}/{r['runs']}")
-    c = Console(width=max(Console().width, 150))  # the table is wide; logs are not terminals
+    c = console()
+    if c.is_terminal:
+        c = Console(width=max(c.width, 150))  # the table is wide
     c.print(t)
     tol = [r for r in runs if r.get("expected") == COMPLETE]
     if tol:
@@ -194,5 +198,5 @@ def print_fault_table(runs: list[dict[str, Any]]) -> int:
     fails = fault_failures(runs)
     c.print(f"runs in their expected outcome: {len(runs) - len(fails)}/{len(runs)}")
     for line in fails:
-        c.print(f"  FAILED {line}")
+        c.print(f"  FAILED {line}", markup=False, soft_wrap=True)
     return len(fails)

@@ -103,22 +103,22 @@ def test_detect_config_file_and_errors(tmp_path, rng, capsys):
 
 
 def test_detect_takes_a_target_image(tmp_path, rng, monkeypatch):
-    """``--target-image`` and the mission file's ``target.appearance_image`` reach the detector
-    as its ``appearance`` context."""
-    from eaglemission.detectors.spectral_residual import SpectralResidualDetector
+    """``--target-image`` and the mission file's ``target.appearance_image`` become the colour
+    model of the appearance prior after the detector."""
+    from eaglemission.perception.appearance import TargetAppearance
 
     data = make_box_dataset(tmp_path / "data", rng, n=2)
     frames = data / "set" / "seq" / "frames"
     crop = np.full((12, 16, 3), (40, 200, 240), np.uint8)
     cv2.imwrite(str(tmp_path / "target.png"), crop)
     seen = []
-    orig = SpectralResidualDetector.__init__
+    orig = TargetAppearance.__init__
 
-    def spy(self, config=None, **context):
-        seen.append(context.get("appearance"))
-        orig(self, config, **context)
+    def spy(self, **kw):
+        seen.append(kw.get("image"))
+        orig(self, **kw)
 
-    monkeypatch.setattr(SpectralResidualDetector, "__init__", spy)
+    monkeypatch.setattr(TargetAppearance, "__init__", spy)
     rc = main(["detect", str(frames), "--detector", "sr", "--target-image",
                str(tmp_path / "target.png"), "--out", str(tmp_path / "o1"), "--no-video"])
     assert rc == 0 and seen[-1] is not None and (seen[-1] == crop).all()

@@ -74,13 +74,16 @@ def test_plan_sets_speeds_and_heights_inside_the_envelope(fast_config: MissionFi
     s = fast_config.safety  # 20 m, 1.5 m/s vertical, 4 m/s horizontal; cruise at 5 m
     px4 = {"RTL_RETURN_ALT": 30.0, "RTL_DESCEND_ALT": 10.0, "RTL_CONE_ANG": 45.0,
            "MPC_Z_V_AUTO_UP": 3.0, "MPC_Z_V_AUTO_DN": 1.5, "MPC_TKO_SPEED": 1.5,
-           "MPC_LAND_SPEED": 0.7, "MPC_XY_CRUISE": 5.0, "COM_OBL_RC_ACT": 0.0}
+           "MPC_LAND_SPEED": 0.7, "MPC_XY_CRUISE": 5.0, "MPC_XY_VEL_MAX": 12.0,
+           "COM_OBL_RC_ACT": 0.0}
     got = {c.name: (c.new, c.envelope_key) for c in plan(px4, s, 5.0)}
     assert got == {"RTL_RETURN_ALT": (5.0, "safety.max_altitude_m"),
                    "RTL_DESCEND_ALT": (5.0, "safety.max_altitude_m"),
                    "MPC_Z_V_AUTO_UP": (1.35, "safety.max_vertical_speed_mps"),
                    "MPC_XY_CRUISE": (round(0.9 * s.max_horizontal_speed_mps, 3),
-                                     "safety.max_horizontal_speed_mps")}
+                                     "safety.max_horizontal_speed_mps"),
+                   "MPC_XY_VEL_MAX": (round(0.9 * s.max_horizontal_speed_mps, 3),
+                                      "safety.max_horizontal_speed_mps")}
     # inside the envelope, refuse mode (no alignment) has nothing to object to
     assert plan({"RTL_RETURN_ALT": 10.0, "RTL_DESCEND_ALT": 5.0, "MPC_Z_V_AUTO_UP": 1.35},
                 s, 5.0, align_return=False) == []

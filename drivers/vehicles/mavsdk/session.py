@@ -155,7 +155,13 @@ class MavsdkSession:
         name = getattr(result, "name", str(result))
         self._event(EVENT_REFUSED, f"{origin}: {name}", {"command": origin, "result": name})
         detail = f"MAVSDK {getattr(exc, 'origin', origin)}: {name}"
-        if name in REMEDIES:
+        if result is None:  # MAVSDK could not even start the call (e.g. open the link)
+            detail = (f"MAVSDK {origin}: {exc}" if str(exc) not in ("", "None")
+                      else f"MAVSDK could not do {origin}")
+            if origin == "connect()":
+                detail += (f" with {params}: check the URL, that the port is free and the "
+                           "device exists")
+        elif name in REMEDIES:
             detail += f" ({REMEDIES[name]})"
         return VehicleError(name, origin, params, detail)
 

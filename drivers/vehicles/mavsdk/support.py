@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from typing import Annotated, Any, Literal, Protocol
@@ -197,6 +198,24 @@ def parse_url(url: str) -> str:
                                f"{scheme}:// needs HOST:PORT with an explicit host "
                                "(e.g. udpin://0.0.0.0:14540; MAVSDK rejects udpin://:14540)")
     return scheme
+
+
+def serial_problem(url: str) -> str | None:
+    """Why a ``serial://`` URL's device cannot be opened (None: it can, or not serial): checked
+    before MAVSDK tries, whose own error names neither the device nor the fix."""
+    scheme, _, rest = url.partition("://")
+    if scheme != "serial":
+        return None
+    device, _, baud = rest.rpartition(":")
+    device = device if baud.isdigit() else rest
+    if not device.startswith("/"):
+        return None  # COM3 and the like: MAVSDK's own check
+    if not os.path.exists(device):
+        return f"{device} not found: plug in the autopilot (or fix vehicle.params.url)"
+    if not os.access(device, os.R_OK | os.W_OK):
+        return (f"{device}: no permission to open it: add your user to its group "
+                "(ls -l shows it, e.g. dialout) and log in again")
+    return None
 
 
 def mission_plan(m: dict[str, Any], home: GeoPoint, waypoints: Sequence[Waypoint]) -> Any:

@@ -74,6 +74,7 @@ from eaglemission.drivers.vehicles.mavsdk.support import (
     geofence_data,
     mission_plan,
     parse_url,
+    serial_problem,
     step_towards,
     thread_safe_now,
 )
@@ -112,6 +113,7 @@ class MavsdkVehicle:
     Config = MavsdkVehicleConfig
     description = "PX4 / MAVLink autopilot through MAVSDK 4.1 (telemetry, commands, offboard + watchdog)"
     wall_clock = True  # MAVSDK and the autopilot run in host time
+    extra = "mavsdk"  # mavsdk (eaglemission.extras)
 
     def __init__(self, config: MavsdkVehicleConfig | None = None, *, clock: Clock | None = None,
                  safety: SafetyConfig | None = None, mavlink_peer: MavlinkPeer | None = None,
@@ -169,6 +171,9 @@ class MavsdkVehicle:
             raise VehicleError("UNSUPPORTED_CLOCK", "connect()", None,
                                "the clock does not advance in wall time: MAVSDK runs in wall "
                                "time, use MonotonicClock (not a manual or virtual-time clock)")
+        device = serial_problem(cfg.url)
+        if device is not None:
+            raise VehicleError("CONNECTION_ERROR", "connect()", cfg.url, device)
         if scheme == "raw" and self._peer is None:
             raise VehicleError("CONNECTION_ERROR", "connect()", cfg.url,
                                "raw:// needs a `mavlink_peer` in the context (e.g. the emulator)")

@@ -72,10 +72,14 @@ def _params(items: list[str]) -> dict[str, float]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
-    from rich.console import Console
+    from eaglemission import extras
 
-    console = Console()
+    extras.require("mavsdk", "sitl-vehicle")  # pymavlink: one line and exit 2 without it
+    from eaglemission.lab.vehicles.emulator.emulator import EmulatorConfig, Px4Emulator
+
+    from eaglemission.commands import console as make_console
+
+    console = make_console()
     kw: dict[str, object] = {"speedup": args.speedup, "seed": args.seed,
                              "wind_ne_mps": tuple(args.wind), "params": _params(args.param)}
     if args.home:

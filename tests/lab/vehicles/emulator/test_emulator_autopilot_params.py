@@ -76,3 +76,21 @@ async def test_guard_refuses_naming_the_parameter_and_the_envelope_key() -> None
         assert "MPC_Z_V_AUTO_UP=3 m/s" in rep.refused
         assert "safety.max_vertical_speed_mps" in rep.refused
         assert not rep.set_ok and emu.param("RTL_RETURN_ALT") == 30.0
+
+
+async def test_guard_keeps_the_horizontal_speed_limit_inside_the_envelope() -> None:
+    """MPC_XY_VEL_MAX (every horizontal move, offboard included) above the envelope is set
+    inside it through PARAM_SET, flown by the emulator, and restored: never only a warning."""
+    safety = SafetyConfig(max_horizontal_speed_mps=4.0)
+    emulator = {"params": {"MPC_XY_VEL_MAX": 12.0}}
+    async with flying_pair(4.0, emulator=emulator) as (emu, v, _clock):
+        guard = AutopilotGuard(v, safety, cruise_altitude_m=5.0)
+        rep = await guard.apply()
+        got = {c.name: (c.old, c.new, c.envelope_key) for c in rep.set_ok}
+        assert got["MPC_XY_VEL_MAX"] == (12.0, 3.6, "safety.max_horizontal_speed_mps"), got
+        assert not rep.refused
+        assert emu.param("MPC_XY_VEL_MAX") == pytest.approx(3.6)
+        assert await v.get_param("MPC_XY_VEL_MAX") == pytest.approx(3.6)
+        await guard.restore()
+        assert await v.get_param("MPC_XY_VEL_MAX") == 12.0
+        assert emu.param("MPC_XY_VEL_MAX") == 12.0
