@@ -2,7 +2,7 @@
 
 The first flight after an install otherwise compiles them itself (tens of seconds before the
 header, a few kernels more in the air). Warming up flies the embedded simulation in virtual
-time with CONFIG's detector, estimators and tracker (those hold the kernels), nothing recorded;
+time with CONFIG's detector, estimators and appearance (those hold the kernels), nothing recorded;
 numba's disk cache then serves every later run. Progress is said as it compiles.
 """
 
@@ -14,13 +14,13 @@ from typing import Any
 
 from eaglemission.commands import Command, console
 
-KERNEL_SECTIONS = ("detector", "estimators", "tracker")
+KERNEL_SECTIONS = ("detector", "estimators", "appearance")
 """The sections whose plugins compile numba kernels, taken from CONFIG."""
 
 
 def _add(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", nargs="?",
-                   help="mission YAML whose detector, estimators and tracker to compile "
+                   help="mission YAML whose detector, estimators and appearance to compile "
                         "(default: the embedded sitl_synthetic.yaml)")
 
 
