@@ -1,7 +1,7 @@
 """Plugin registry: entry points, one group per role, checked against the role's Protocol.
 
 Plugins are loaded only from entry points (``eaglemission.cameras``, ``.vehicles``,
-``.detectors``, ``.estimators``, ``.fitters``, ``.missions``, ``.worlds``,
+``.detectors``, ``.estimators``, ``.fitters``, ``.trackers``, ``.missions``, ``.worlds``,
 ``.sections``, ``.judges``); a config can never name an import path. A plugin class declares ``Config`` (a pydantic model of its params, with defaults) and a one-line
 ``description``; ``load(role, name, params, **context)`` validates the params with that model
 and constructs the plugin as ``cls(config=..., **context)``.
@@ -28,6 +28,7 @@ from eaglemission.interfaces import (
     Mission,
     PlaneFitter,
     Section,
+    Tracker,
     Vehicle,
     World,
 )
@@ -39,6 +40,7 @@ PROTOCOLS: dict[str, type] = {
     "detectors": Detector,
     "estimators": Estimator,
     "fitters": PlaneFitter,
+    "trackers": Tracker,
     "missions": Mission,
     "worlds": World,
     "sections": Section,

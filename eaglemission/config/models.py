@@ -21,6 +21,7 @@ from eaglemission.config.errors import format_validation_error
 from eaglemission.errors import ConfigError, PluginError
 from eaglemission.geometry import CameraModel, CameraMount
 from eaglemission.perception.appearance import AppearanceConfig
+from eaglemission.perception.keep import KeepConfig
 
 DEFAULT_CONFIG = "sitl_synthetic.yaml"
 
@@ -110,6 +111,13 @@ class DetectorSection(PluginSection):
     otsu}}}``, the paper's adaptive threshold for the deep fovea)."""
 
     per_camera: dict[Literal["wide", "narrow"], dict[str, Any]] = Field(default_factory=dict)
+
+
+class TrackerSection(PluginSection):
+    """The tracker that keeps the target between the detector's frames (``type``: a
+    ``trackers`` plugin, ``params`` its own) and how it keeps it (``keep``)."""
+
+    keep: KeepConfig = Field(default_factory=KeepConfig)
 
 
 class EstimatorsSection(StrictModel):
@@ -282,6 +290,10 @@ class MissionFile(StrictModel):
     vehicle: PluginSection
     cameras: CamerasSection
     detector: DetectorSection
+    tracker: TrackerSection | None = Field(
+        default_factory=lambda: TrackerSection(type="csrt"))
+    """Keeps the confirmed target between the detector's frames; ``null``: the detector on
+    every frame alone."""
     appearance: AppearanceConfig = Field(default_factory=AppearanceConfig)
     """How the target's appearance (``target.color_bgr``, ``target.appearance_image``) is
     modelled, and the appearance prior stage after the detector."""
@@ -402,6 +414,8 @@ def plugin_sections(cfg: MissionFile) -> list[tuple[str, str, str, dict[str, Any
         *([("fitters", "estimators.fitter", cfg.estimators.fitter.type,
             cfg.estimators.fitter.params)] if cfg.estimators.fitter is not None else []),
         ("missions", "mission", cfg.mission.type, cfg.mission.params),
+        *([("trackers", "tracker", cfg.tracker.type, cfg.tracker.params)]
+          if cfg.tracker is not None else []),
         *([("worlds", "world", cfg.world.type, cfg.world.params)]
           if cfg.world is not None else []),
         *[("sections", name, name, getattr(cfg, name)) for name in SECTIONS

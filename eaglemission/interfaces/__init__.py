@@ -13,10 +13,11 @@ from eaglemission.interfaces.mission import (
     MissionOutcome,
 )
 from eaglemission.interfaces.section import Section
+from eaglemission.interfaces.tracker import Tracker
 from eaglemission.interfaces.truth import GroundTruth
 from eaglemission.interfaces.vehicle import Vehicle
 from eaglemission.interfaces.world import World
 
 __all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "FlightRecorder",
            "GroundTruth", "Judge", "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter",
-           "Section", "Vehicle", "Verdict", "World"]
+           "Section", "Tracker", "Vehicle", "Verdict", "World"]
