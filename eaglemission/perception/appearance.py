@@ -48,9 +48,16 @@ class ColourConfig(BaseModel):
 
 
 class ExampleModelConfig(BaseModel):
-    """The colour model of the example image (needs ``target.appearance_image``)."""
+    """The colour model of the example image and its match as a template (need
+    ``target.appearance_image``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    match_min_ncc: float | None = Field(0.6, gt=0, le=1, description=(
+        "choosing among the detector's regions with no prediction of where the target is: "
+        "the region where the example image itself matches best (normalised cross-"
+        "correlation at its own scale, near the region's centre) when it matches at least "
+        "this well; null: the detector's order"))
 
     target_fraction: float = Field(0.1, gt=0, le=1, description=(
         "fraction of the frame the target is expected to cover (the back-projection's prior)"))
@@ -75,6 +82,33 @@ class AppearanceConfig(BaseModel):
     prior: PriorConfig | None = Field(default_factory=PriorConfig, description=(
         "the appearance prior after the detector, when the target has an example image; "
         "null: the detector's map alone"))
+
+
+MATCH_SIDE_PX = 48
+"""The example's long side when matched as a template (larger examples are reduced, the frame
+with them)."""
+
+
+def example_ncc(image: NDArray[np.uint8], example: NDArray[np.uint8],
+                centre_px: tuple[float, float]) -> float:
+    """See :meth:`TargetAppearance.example_match`."""
+    th, tw = example.shape[:2]
+    k = min(1.0, MATCH_SIDE_PX / max(th, tw))
+    margin = max(th, tw) // 2 + 4
+    u0, v0 = int(centre_px[0] - tw / 2 - margin), int(centre_px[1] - th / 2 - margin)
+    u1, v1 = u0 + tw + 2 * margin, v0 + th + 2 * margin
+    u0, v0 = max(0, u0), max(0, v0)
+    u1, v1 = min(image.shape[1], u1), min(image.shape[0], v1)
+    if u1 - u0 < tw or v1 - v0 < th or image.ndim != 3:
+        return -1.0
+    window, template = image[v0:v1, u0:u1], example
+    if k < 1.0:
+        window = cv2.resize(window, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
+        template = cv2.resize(example, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
+    if template.shape[0] > window.shape[0] or template.shape[1] > window.shape[1]:
+        return -1.0
+    ncc = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+    return float(cv2.minMaxLoc(ncc)[1])
 
 
 def read_example_image(path: str | Path, *, where: str = "target.appearance_image"
@@ -118,6 +152,16 @@ class TargetAppearance:
         image = read_example_image(path) if path else None
         return cls(image=image, colour_bgr=getattr(target, "color_bgr", None), colour=cfg.colour,
                    example=cfg.example)
+
+    def example_match(self, image: NDArray[np.uint8], centre_px: tuple[float, float]
+                      ) -> float:
+        """How well the example image itself matches the frame near ``centre_px``: the best
+        normalised cross-correlation (TM_CCOEFF_NORMED) of the example at its own scale (its
+        long side reduced to :data:`MATCH_SIDE_PX`, the frame with it) over a window of a
+        template's size around the centre; -1 without an example or where it does not fit."""
+        if self.image is None:
+            return -1.0
+        return example_ncc(image, self.image, centre_px)
 
     def with_prior(self, detector: Any, prior: PriorConfig | None) -> Any:
         """``detector`` followed by the appearance prior (``prior``; None: the detector alone,
