@@ -1,5 +1,6 @@
 """``eaglemission detect``: run one detector on a video or an image folder and write overlay
-images (heat map, thresholded regions, MBRs with their corner order) and ``detections.jsonl``.
+images (:mod:`eaglemission.detectors.overlay`: saliency where salient with its colour bar and
+threshold, region outlines, ranked MBRs with their corner order) and ``detections.jsonl``.
 Detectors are loaded only through ``eaglemission.registry.load("detectors", name, params)``. See
 docs/detectors.md."""
 
@@ -24,14 +25,14 @@ from eaglemission.detectors.inputs import (
     read_image,
     read_target_image,
 )
+from eaglemission.detectors.overlay import draw_overlay
 from numpy.typing import NDArray
 
 from eaglemission import registry
 from eaglemission.commands import Command
 from eaglemission.errors import InputError
 from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance
-from eaglemission.perception.regions import to_uint8
-from eaglemission.types import DetectionResult, Frame, TargetPrior
+from eaglemission.types import Frame, TargetPrior
 
 # the logger keeps the name of the module the command came from (eaglemission.detectors.cli,
 # shown in the log lines); built, not spelled out: a module name string counts as an import
@@ -75,34 +76,6 @@ def iter_input(path: Path, fps: float, max_frames: int | None) -> Iterator[tuple
             raise UsageError(f"INPUT {str(path)!r}: the video has no readable frame")
     finally:
         cap.release()
-
-
-def draw_overlay(image: np.ndarray, result: DetectionResult, *, alpha: float = 0.45) -> np.ndarray:
-    """Heat map blended over the frame, region outlines, MBRs with corner 0..3 marked."""
-    img = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    sal8 = to_uint8(result.saliency)
-    heat = cv2.applyColorMap(sal8, cv2.COLORMAP_JET)
-    out = cv2.addWeighted(img, 1.0 - alpha, heat, alpha, 0.0)
-    t8 = int(round(result.threshold * 255))
-    mask = (sal8 > t8).astype(np.uint8) * 255
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    cv2.drawContours(out, contours, -1, (255, 255, 255), 1, cv2.LINE_AA)
-    scale = max(img.shape[:2]) / 1000.0
-    for rank, det in enumerate(result.detections):
-        colour = (0, 255, 0) if rank == 0 else (0, 255, 255)
-        pts = np.round(det.corners_px).astype(np.int32)
-        cv2.polylines(out, [pts], True, colour, 2 if rank == 0 else 1, cv2.LINE_AA)
-        for k, (u, v) in enumerate(pts):
-            cv2.circle(out, (int(u), int(v)), 5 if k == 0 else 3, (0, 0, 255) if k == 0 else colour,
-                       -1, cv2.LINE_AA)
-            cv2.putText(out, str(k), (int(u) + 4, int(v) - 4), cv2.FONT_HERSHEY_SIMPLEX,
-                        0.5 * max(scale, 0.6), colour, 1, cv2.LINE_AA)
-        cu, cv_ = det.center_px
-        cv2.putText(out, f"#{rank} {det.score:.2f}", (int(cu), int(cv_)), cv2.FONT_HERSHEY_SIMPLEX,
-                    0.5 * max(scale, 0.6), colour, 1, cv2.LINE_AA)
-    cv2.putText(out, f"{len(result.detections)} detection(s), T={t8}", (8, 20),
-                cv2.FONT_HERSHEY_SIMPLEX, 0.6 * max(scale, 0.6), (255, 255, 255), 1, cv2.LINE_AA)
-    return out
 
 
 def detector_from_args(args: argparse.Namespace) -> tuple[str, dict[str, Any]]:
@@ -267,5 +240,6 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 DETECT_COMMAND = Command(
-    "run a detector on a video or an image folder and write overlays (heat map, regions, MBRs)",
+    "run a detector on a video or an image folder and write overlays (saliency, regions, "
+    "ranked MBRs, legend)",
     _detect_args, run_detect)

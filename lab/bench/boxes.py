@@ -18,7 +18,11 @@ Metrics of one frame against its box (docs/detectors.md, "Box benchmarks"):
   (a non-constant map; ties count as on target);
 - **false detections**: detections whose centre lies outside the grown box (every detection of a
   frame without the target);
-- **any**: the frame has at least one detection.
+- **any**: the frame has at least one detection;
+- **on the mask** (mask sequences only): the best-ranked detection's centre, rounded to the
+  nearest pixel, lies on a ground-truth mask pixel: stricter than *on target*, whose grown
+  bounding box also holds background (a detection on the top edge of a car's box is on target
+  but not on the car).
 
 References
 ----------
@@ -152,6 +156,12 @@ def detection_iou(det: Detection, box: Box) -> float:
     return polygon_iou(det.corners_px, box_corners(box))
 
 
+def point_on_mask(u: float, v: float, mask: NDArray[np.bool_]) -> bool:
+    """Whether ``(u, v)``, rounded to the nearest pixel, is a mask pixel (False outside)."""
+    c, r = int(round(u)), int(round(v))
+    return bool(0 <= r < mask.shape[0] and 0 <= c < mask.shape[1] and mask[r, c])
+
+
 def peak_on_target(saliency: NDArray[np.floating], grown: Box) -> bool:
     """Whether the map's global maximum is reached inside the grown box (pixel centres inside).
 
@@ -171,7 +181,8 @@ def peak_on_target(saliency: NDArray[np.floating], grown: Box) -> bool:
 
 @dataclass(frozen=True)
 class FrameBoxScore:
-    """Box metrics of one frame (``has_target`` False: only ``n_false`` and ``n_detections``)."""
+    """Box metrics of one frame (``has_target`` False: only ``n_false`` and ``n_detections``;
+    ``best_on_mask`` None: the frame has no mask)."""
 
     has_target: bool
     peak_on_target: bool
@@ -179,21 +190,25 @@ class FrameBoxScore:
     iou: float
     n_detections: int
     n_false: int
+    best_on_mask: bool | None = None
 
 
-def score_frame(result: DetectionResult, box: Box,
-                grow_fraction: float = GROW_FRACTION) -> FrameBoxScore:
-    """Box metrics of one detector result against the frame's box (NaN: no target)."""
+def score_frame(result: DetectionResult, box: Box, grow_fraction: float = GROW_FRACTION, *,
+                mask: NDArray[np.bool_] | None = None) -> FrameBoxScore:
+    """Box metrics of one detector result against the frame's box (NaN: no target) and, when
+    given, its ground-truth mask (``best_on_mask``)."""
     dets = result.detections
+    best = dets[0] if dets else None
+    on_mask = None if mask is None else (
+        best is not None and point_on_mask(*best.center_px, mask))
     if not box_valid(box):
-        return FrameBoxScore(False, False, False, 0.0, len(dets), len(dets))
+        return FrameBoxScore(False, False, False, 0.0, len(dets), len(dets), on_mask)
     grown = grow_box(box, grow_fraction)
     hits = [point_in_box(*d.center_px, grown) for d in dets]
-    best = dets[0] if dets else None
     return FrameBoxScore(
         True, peak_on_target(result.saliency, grown), bool(hits and hits[0]),
         detection_iou(best, box) if best is not None else 0.0, len(dets),
-        sum(not h for h in hits))
+        sum(not h for h in hits), on_mask)
 
 
 @dataclass
@@ -208,10 +223,15 @@ class BoxScores:
     sum_iou: float = 0.0
     detections: int = 0
     false_detections: int = 0
+    mask_frames: int = 0  # scored frames with a ground-truth mask
+    mask_hits: int = 0
     per_frame: list[FrameBoxScore] = field(default_factory=list, repr=False)
 
     def add(self, s: FrameBoxScore) -> None:
         self.frames += 1
+        if s.best_on_mask is not None:
+            self.mask_frames += 1
+            self.mask_hits += s.best_on_mask
         self.detections += s.n_detections
         self.false_detections += s.n_false
         if s.has_target:
@@ -223,7 +243,7 @@ class BoxScores:
 
     def merge(self, other: BoxScores) -> None:
         for k in ("frames", "target_frames", "peak_hits", "best_hits", "any_frames", "sum_iou",
-                  "detections", "false_detections"):
+                  "detections", "false_detections", "mask_frames", "mask_hits"):
             setattr(self, k, getattr(self, k) + getattr(other, k))
 
     @property
@@ -233,6 +253,12 @@ class BoxScores:
     @property
     def on_target_rate(self) -> float:
         return self.best_hits / self.target_frames if self.target_frames else math.nan
+
+    @property
+    def on_mask_rate(self) -> float:
+        """Frames whose best detection's centre is on the mask, over the frames with a mask
+        (NaN: none)."""
+        return self.mask_hits / self.mask_frames if self.mask_frames else math.nan
 
     @property
     def any_rate(self) -> float:
@@ -250,6 +276,7 @@ class BoxScores:
     def as_dict(self) -> dict[str, float | int]:
         return {"frames": self.frames, "target_frames": self.target_frames,
                 "peak_on_target": self.peak_rate, "best_on_target": self.on_target_rate,
+                "best_on_mask": self.on_mask_rate, "mask_frames": self.mask_frames,
                 "mean_iou": self.mean_iou, "frames_with_detection": self.any_rate,
                 "detections_per_frame": self.detections / self.frames if self.frames else math.nan,
                 "false_per_frame": self.false_per_frame}

@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-import numpy as np
 from eaglemission.detectors.cli_params import DetectorSpec
 from eaglemission.detectors.inputs import frame_time_ns, read_image
 from eaglemission.lab.bench.boxes import (
@@ -33,8 +32,6 @@ class DetectorRun:
     box: BoxScores = field(default_factory=BoxScores)
     detections: int = 0
     frames: int = 0
-    hits: int = 0  # scored mask frames whose best detection's centre lies on the GT mask
-    scored: int = 0
     time_s: list[float] = field(default_factory=list)
 
     @property
@@ -49,7 +46,8 @@ def run_detector_on_sequence(detector: Any, seq: BenchSequence, fps: float, run:
 
     Every frame is run (the detector's state sees the whole sequence); frames before
     ``first_scored`` are not scored. Mask frames feed the curves (max F, AUC, MAE) and the box
-    metrics against the mask's bounding box; ``boxes.txt`` frames feed the box metrics.
+    metrics against the mask's bounding box and the mask itself (on the mask); ``boxes.txt``
+    frames feed the box metrics.
     """
     detector.reset()
     acc = CurveAccumulator()
@@ -63,13 +61,11 @@ def run_detector_on_sequence(detector: Any, seq: BenchSequence, fps: float, run:
         run.detections += len(result.detections)
         run.frames += 1
         if i >= first_scored:
-            box = None
+            box = gt = None
             if gpath is not None:
                 sal01 = normalize_map(result.saliency)
                 gt = read_gt(gpath, image.shape[:2])
                 acc.add(sal01, gt)
-                run.scored += 1
-                run.hits += best_on_gt(result, gt)
                 box = box_from_mask(gt)
                 if save_dir is not None:
                     out = save_dir / seq.name / f"{fpath.stem}.png"
@@ -78,17 +74,10 @@ def run_detector_on_sequence(detector: Any, seq: BenchSequence, fps: float, run:
             if seq.boxes is not None:
                 box = seq.boxes[i]
             if box is not None:
-                boxes.add(score_frame(result, box))
+                boxes.add(score_frame(result, box, mask=gt))
         if on_frame is not None:
             on_frame()
     run.overall.merge(acc)
     run.box.merge(boxes)
     return (acc.scores() if acc.n_frames else None), boxes
 
-
-def best_on_gt(result: DetectionResult, gt: np.ndarray) -> bool:
-    """Whether the best detection's centre falls on a ground-truth pixel."""
-    if result.best is None:
-        return False
-    u, v = (int(round(c)) for c in result.best.center_px)
-    return bool(0 <= v < gt.shape[0] and 0 <= u < gt.shape[1] and gt[v, u])

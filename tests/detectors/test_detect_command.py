@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from eaglemission.detectors.cli_params import UsageError, parse_detector_specs, parse_kv
+from eaglemission.detectors.overlay import MIN_WIDTH_PX
 from saliency_datasets import make_box_dataset, make_mask_dataset
 
 from eaglemission.cli import main
@@ -47,7 +48,9 @@ def test_detect_on_image_folder_and_video(tmp_path, rng, capsys):
                "--params", "regions.min_area_px=20"])
     assert rc == 0
     jpgs = sorted(out.glob("*.jpg"))
-    assert len(jpgs) == 3 and cv2.imread(str(jpgs[0])).shape == (72, 96, 3)
+    # the 96 x 72 frame at the top-left, padded to the overlay's narrowest width, legend below
+    shape = cv2.imread(str(jpgs[0])).shape
+    assert len(jpgs) == 3 and shape[1] == MIN_WIDTH_PX and shape[0] > 72 and shape[2] == 3
     lines = [json.loads(x) for x in (out / "detections.jsonl").read_text().splitlines()]
     assert len(lines) == 3 and lines[0]["detections"], lines[0]
     c = np.array(lines[0]["detections"][0]["corners_px"])

@@ -28,7 +28,9 @@ def test_bench_on_generated_dataset(tmp_path, rng, capsys):
     assert ft["overall"]["max_f"] > 0.9 and ft["overall"]["auc"] > 0.95
     assert ft["overall"]["max_f"] > res["detectors"]["centre_prior"]["overall"]["max_f"]
     assert len(ft["curves"]["precision"]) == 256
-    assert ft["best_detection_on_gt"] == 1.0  # the square is the best region in every frame
+    # the square is the best region in every frame
+    assert ft["box"]["overall"]["best_on_mask"] == 1.0
+    assert ft["box"]["overall"]["mask_frames"] == 8
     assert res["detectors"]["centre_prior"]["detections_per_frame"] == 1.0
     text = (out / "results.md").read_text()
     assert "| ft |" in text and "| alpha |" in text and "max F / SR" in text
@@ -153,4 +155,57 @@ def test_bench_box_file_errors(tmp_path, rng, capsys):
     rc = main(["bench", "--data", str(data), "--target-image", str(tmp_path / "nope.png"),
                "--out", str(tmp_path / "o"), "--no-progress"])
     assert rc == 2 and "--target-image" in capsys.readouterr().err
+
+
+
+def _table(text: str, column: str) -> dict[str, str]:
+    """``{first cell: cell of column}`` of the markdown table whose header has ``column``."""
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if column in cells:
+            k = cells.index(column)
+            rows = {}
+            for row in lines[i + 2:]:
+                if not row.startswith("|"):
+                    break
+                r = [c.strip() for c in row.strip().strip("|").split("|")]
+                rows[r[0]] = r[k]
+            return rows
+    raise AssertionError(f"no table with a column {column!r}")
+
+
+def test_bench_tables_agree_on_the_best_detection_on_the_mask(tmp_path, capsys):
+    """A ring whose hole holds the frame's centre: the centre prior's one detection is inside
+    the ring's (grown) box but never on the mask. Both tables give the one figure, from the
+    box metrics: 0 % on the mask, 100 % on target."""
+    root = tmp_path / "data"
+    w, h = 64, 48
+    for name in ("ring",):
+        (root / name / "frames").mkdir(parents=True)
+        (root / name / "gt").mkdir()
+        for i in range(3):
+            img = np.full((h, w, 3), 90, np.uint8)
+            gt = np.zeros((h, w), np.uint8)
+            gt[12:37, 20:45] = 255
+            gt[18:31, 26:39] = 0  # the hole, around the centre (31.5, 23.5)
+            img[gt > 0] = (40, 200, 240)
+            cv2.imwrite(str(root / name / "frames" / f"{i:05d}.png"), img)
+            cv2.imwrite(str(root / name / "gt" / f"{i:05d}.png"), gt)
+    out = tmp_path / "out"
+    rc = main(["bench", "--data", str(root), "--detectors", "centre_prior,ft", "--params",
+               "ft:normalization=minmax", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    text = (out / "results.md").read_text()
+    res = json.loads((out / "results.json").read_text())["detectors"]
+    curve_part, box_part = text.split("Box metrics", 1)
+    assert "max F / SR" in curve_part
+    curve_fig = _table(curve_part, "best detection on the mask")
+    box_fig = _table(box_part, "best detection on the mask")
+    assert curve_fig == box_fig and set(curve_fig) == {"centre_prior", "ft"}
+    assert curve_fig["centre_prior"] == "0.0%"
+    assert _table(box_part, "best detection on target")["centre_prior"] == "100.0%"
+    assert res["centre_prior"]["box"]["overall"]["best_on_mask"] == 0.0
+    assert res["centre_prior"]["box"]["overall"]["best_on_target"] == 1.0
+    assert "best_detection_on_gt" not in res["centre_prior"]
 
