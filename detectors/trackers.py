@@ -26,6 +26,9 @@ from eaglemission.errors import InputError
 from eaglemission.interfaces.tracker import Box
 from eaglemission.types import Frame
 
+CV2: Any = cv2
+"""OpenCV contrib's tracking module, untyped (its stubs lack the tracker factories)."""
+
 
 class _TrackerConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -94,12 +97,12 @@ class CSRTTracker(OpenCVTracker):
 
     def _create(self) -> Any:
         c = self.config
-        p = cv2.TrackerCSRT_Params()
+        p = CV2.TrackerCSRT_Params()
         p.template_size = float(c.template_size)
         p.number_of_scales = int(c.number_of_scales)
         p.admm_iterations = int(c.admm_iterations)
         p.use_segmentation = bool(c.use_segmentation)
-        return cv2.TrackerCSRT_create(p)
+        return CV2.TrackerCSRT_create(p)
 
 
 class KCFTracker(OpenCVTracker):
@@ -108,4 +111,4 @@ class KCFTracker(OpenCVTracker):
     description: ClassVar[str] = "OpenCV KCF: kernelised correlation filter, fixed box size"
 
     def _create(self) -> Any:
-        return cv2.TrackerKCF_create()
+        return CV2.TrackerKCF_create()
