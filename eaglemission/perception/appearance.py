@@ -101,10 +101,13 @@ def example_ncc(image: NDArray[np.uint8], example: NDArray[np.uint8],
     u1, v1 = min(image.shape[1], u1), min(image.shape[0], v1)
     if u1 - u0 < tw or v1 - v0 < th or image.ndim != 3:
         return -1.0
-    window, template = image[v0:v1, u0:u1], example
+    window: NDArray[np.uint8] = image[v0:v1, u0:u1]
+    template: NDArray[np.uint8] = example
     if k < 1.0:
-        window = cv2.resize(window, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
-        template = cv2.resize(example, None, fx=k, fy=k, interpolation=cv2.INTER_AREA)
+        window = np.asarray(cv2.resize(window, None, fx=k, fy=k, interpolation=cv2.INTER_AREA),
+                            np.uint8)
+        template = np.asarray(cv2.resize(example, None, fx=k, fy=k,
+                                         interpolation=cv2.INTER_AREA), np.uint8)
     if template.shape[0] > window.shape[0] or template.shape[1] > window.shape[1]:
         return -1.0
     ncc = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
