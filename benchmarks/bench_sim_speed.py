@@ -70,7 +70,7 @@ def mission_poses(cfg: MissionFile) -> list[tuple[str, tuple[float, float, float
     sim = world_config(cfg)
     tn, te = sim.target_north_m, sim.target_east_m
     alt = cfg.mission.cruise_altitude_m
-    so = ApproachConfig.of(cfg).standoff
+    so = ApproachConfig.of(cfg).guidance.standoff
     return [("cruise", (tn - 12.0, 0.0, -alt), attitude_from_acceleration((1.0, 0.0, 0.0), 0.0)),
             ("standoff", (tn - so.horizontal_m, te, -(so.height_m + cfg.target.height_m)),
              attitude_from_acceleration((0.0, 0.0, 0.0), 0.0)),
