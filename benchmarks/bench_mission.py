@@ -1,4 +1,4 @@
-"""Mission figures of issue 7, printed (never asserted): speed-up over real time, time to
+"""Mission figures, printed (never asserted): speed-up over real time, time to
 GRASP_READY, true tool-point errors, frame-to-setpoint latency, and the detection rate of the
 static target with the mission defaults (cruise, deceleration, 5 s hover) plus false
 detections per frame on a target-free flight.

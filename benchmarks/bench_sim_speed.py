@@ -1,5 +1,5 @@
 """Where the wall time of a closed-loop simulation goes, and the speed paths against the
-straightforward ones they replaced, measured in the same run (issue 7: ``eaglemission run`` at
+straightforward ones they replaced, measured in the same run (the requirement: ``eaglemission run`` at
 >= 10x real time; frame-to-setpoint latency p90 <= 18.5 ms at 1280x960).
 
     python benchmarks/bench_sim_speed.py [CONFIG] [--detector NAME] [--downscale K]

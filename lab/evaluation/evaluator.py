@@ -34,7 +34,7 @@ class Tolerances:
     speed_mps: float = 0.3
     altitude_m: float = 0.5
     geofence_m: float = 0.5
-    grasp_horizontal_m: float = 0.05  # issue 7: final tool-point error <= 0.05 m horizontally
+    grasp_horizontal_m: float = 0.05  # the grasp's requirement: final tool-point error <= 0.05 m horizontally
 
 
 @dataclass(frozen=True)

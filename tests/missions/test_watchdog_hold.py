@@ -1,9 +1,9 @@
-"""The mission's event loop stalls, the driver's offboard watchdog commands HOLD: found on a
-local PX4 v1.16 SITL (2026-12-06, `eaglemission run configs/px4_sitl.yaml` with both cores
-loaded): the loop stalled 0.57 s in FINE_DESCENT, the watchdog commanded HOLD, and the mission
-took its own HOLD for a pilot's mode change and *released* control, leaving the vehicle
-hovering in HOLD with no one flying it. Now the watchdog's HOLD is the mission's own fault:
-it is logged once and the mission ends in ``actions.on_timeout`` (return), landed."""
+"""The mission's event loop stalls and the driver's offboard watchdog commands HOLD (seen on a
+local PX4 v1.16 SITL, `eaglemission run configs/px4_sitl.yaml` with both cores loaded: a
+0.57 s stall in FINE_DESCENT). That HOLD is the mission's own fault, not a pilot's mode change:
+taken for one, the mission would *release* control and leave the vehicle hovering in HOLD with
+no one flying it. It is logged once and the mission ends in ``actions.on_timeout`` (return),
+landed."""
 
 from __future__ import annotations
 
