@@ -57,7 +57,7 @@ class TargetTracking:
                  tracking: TrackingConfig, perception: PerceptionConfig, plane: PlaneConfig,
                  grasp: GraspConfig) -> None:
         self.cfg = cfg
-        self.p, self.perception, self.plane_p, self.grasp_p = tracking, perception, plane, grasp
+        self.p, self.perception_p, self.plane_p, self.grasp_p = tracking, perception, plane, grasp
         self.models = models
         self.log = log
         self.filter = TargetFilter(tracking.filter)
@@ -212,7 +212,7 @@ class TargetTracking:
         """One processed frame: log it and feed its estimate to the confirmation, the filter,
         the camera choice and the grasp check."""
         cam_id, frame, state = meas.camera_id, meas.frame, meas.state
-        p, pp = self.p, self.perception
+        p, pp = self.p, self.perception_p
         if meas.fit_hint is not None:
             self.fit_hint = meas.fit_hint
         det = meas.detection
