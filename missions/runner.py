@@ -20,6 +20,7 @@ Values cross threads only as arguments and return values of the worker calls.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import math
 import time
@@ -120,16 +121,15 @@ class MissionRunner:
         self.machine = ApproachMachine(on_change=self._on_state_change)
         self.perception = Perception(params.perception, cfg.target,
                                      thumbnails=on_processed is not None)
+        self._limits = configured_limits(cfg, params)
         self.track = TargetTracking(cfg, self.models, mission_log, tracking=params.tracking,
                                     perception=params.perception, plane=params.plane,
                                     grasp=params.grasp)
         self.guidance = gd.Guidance(gd.Plan.of(cfg, params.grasp.distance_m), params.guidance)
-        # the grasp pose is held on the live estimate for the stable period before leaving
-        hold_s = params.grasp.stable_frames / params.perception.process_rate_hz
-        self.actuator = Actuator(cfg, self.vehicle, clock, mission_log, self.guidance,
-                                 grasp=params.grasp, timeouts=params.timeouts,
-                                 grasp_hold_s=hold_s, grasp_callback=grasp_callback,
-                                 guard=autopilot_guard)
+        self.actuator = Actuator(  # the grasp pose is held for the stable period before leaving
+            cfg, self.vehicle, clock, mission_log, self.guidance, grasp=params.grasp,
+            timeouts=params.timeouts, grasp_callback=grasp_callback, guard=autopilot_guard,
+            grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz)
         self.actuator.on_grasp_done = self._wake_machine_now
         self._interrupt: tuple[str, FinalAction] | None = None
         self._watchdog_hold = ""
@@ -348,36 +348,28 @@ class MissionRunner:
         dwell = 0.0 if self._at_standoff_since_ns is None else (
             now - self._at_standoff_since_ns) * 1e-9
         in_state_s = (now - self._entered_ns.get(st, now)) * 1e-9
-        return Snapshot(
+        return dataclasses.replace(
+            self._limits,
             t_s=self._t_s(), time_in_state_s=(now - entered) * 1e-9, state_timeout_s=timeout,
             armable=vs.armable, position_valid=vs.position_valid,
             cameras_streaming=self.pump.streaming(),
             detector_warm=warm, telemetry_hz=self.telemetry.rate_hz(),
-            min_telemetry_hz=p.timeouts.min_telemetry_hz,
             in_air=vs.in_air, altitude_m=-vs.position_ned_m[2],
-            takeoff_altitude_m=self.m.cruise_altitude_m,
-            takeoff_tolerance_m=p.guidance.takeoff_tolerance_m,
             route_finished=self.guidance.route_finished(vs.position_ned_m),
-            confirmed_frames=len(self.track.confirm), confirm_frames=p.tracking.confirm_frames,
+            confirmed_frames=len(self.track.confirm),
             target_in_narrow_view=self.track.choice.target_in_narrow,
             narrow_warm=self._processed.get(CAMERA_NARROW, 0) >= p.perception.narrow_warmup_frames,
             has_target=filt is not None, target_age_s=filt.age_s if filt else math.inf,
             target_expected_visible=self.track.choice.expected_visible,
-            target_lost_after_s=p.tracking.lost_after_s,
             at_standoff=self._at_standoff, standoff_dwell_s=dwell,
-            standoff_max_wait_s=p.guidance.standoff.max_wait_s,
             fine_estimates=self.track.fine_estimates,
-            fine_min_estimates=p.guidance.standoff.min_fine_estimates,
-            grasp_stable_frames=self.track.grasp_count,
-            grasp_required_frames=p.grasp.stable_frames, grasp_done=act.grasp_done,
+            grasp_stable_frames=self.track.grasp_count, grasp_done=act.grasp_done,
             search_exhausted=(pol.goal is Goal.SEARCH
                               and in_state_s > p.timeouts.target_lost_s),
             candidate_rejected=self.track.just_rejected, target_losses=self.track.last_losses,
-            on_target_lost=p.actions.on_target_lost, link_lost_s=self.telemetry.link_lost_s(now),
-            link_loss_timeout_s=self.cfg.safety.link_loss_timeout_s,
+            link_lost_s=self.telemetry.link_lost_s(now),
             gps_ok=vs.gps_fix and (vs.position_valid or not vs.link_ok),
             battery_remaining=vs.battery_remaining,
-            low_battery_fraction=self.cfg.safety.low_battery_fraction,
             goal_inside_geofence=self._goal_ok, camera_failed=camera_failed,
             pilot_override=pilot, watchdog_hold=self._watchdog_hold,
             autopilot_failover=self.telemetry.failover, command_failed=act.command_failed,
@@ -489,6 +481,22 @@ class MissionRunner:
                            frame_counts=result.frame_counts, wall_s=round(result.wall_s, 3),
                            completed=completed)
         return result
+
+
+def configured_limits(cfg: MissionFile, p: ApproachConfig) -> Snapshot:
+    """A snapshot holding what the mission file fixes for the guards (thresholds, the loss
+    action); :meth:`MissionRunner.snapshot` fills in each tick's measurements."""
+    return Snapshot(min_telemetry_hz=p.timeouts.min_telemetry_hz,
+                    takeoff_altitude_m=cfg.mission.cruise_altitude_m,
+                    takeoff_tolerance_m=p.guidance.takeoff_tolerance_m,
+                    confirm_frames=p.tracking.confirm_frames,
+                    target_lost_after_s=p.tracking.lost_after_s,
+                    standoff_max_wait_s=p.guidance.standoff.max_wait_s,
+                    fine_min_estimates=p.guidance.standoff.min_fine_estimates,
+                    grasp_required_frames=p.grasp.stable_frames,
+                    on_target_lost=p.actions.on_target_lost,
+                    link_loss_timeout_s=cfg.safety.link_loss_timeout_s,
+                    low_battery_fraction=cfg.safety.low_battery_fraction)
 
 
 def mission_result(r: MissionRunner) -> MissionResult:
