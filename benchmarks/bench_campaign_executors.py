@@ -1,7 +1,7 @@
 """The same campaign on the local pool and on the Ray executor: wall time of each and whether
 their summaries are equal apart from wall-time fields (``speedup``, ``latency_p90_ms``).
 
-Usage (the issue's figure is ``--runs 200``, about 50 CPU-minutes per executor)::
+Usage (the full figure is ``--runs 200``, about 50 CPU-minutes per executor)::
 
     python benchmarks/bench_campaign_executors.py configs/sitl_synthetic.yaml --runs 20 --seed 7 \\
         --workers 2 [--address ADDR] [--out DIR]

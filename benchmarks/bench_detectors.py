@@ -17,7 +17,7 @@ No target (``--no-target``): detections per frame with each detector's config (d
 ``--params``) on target-free ground, a camera translating 4 px/frame (cruise) and hovering
 (static + sensor noise), 854x480. Ground from the synthetic world's textures
 (lab/world/textures.py) when importable, else generated value noise; ``--ground-images
-DIR``: the real nadir photos in DIR at their own scale. Issues 3 and 14 ask for at most 0.05
+DIR``: the real nadir photos in DIR at their own scale. The requirement: at most 0.05
 detections per frame.
 """
 

@@ -14,14 +14,14 @@ added: smoother than a real camera at that scale; ``--scales-mm 34 73`` keeps th
 At every scale ``--crops`` windows of ``--size`` (1280x960, the camera's) are taken at seeded
 random positions, and each window is a short pan of ``--frames`` frames (4 px per frame, sensor
 noise sigma 2), so that detectors with temporal state see motion; every detector is reset per
-window. Nothing is composited: every detection is false. The issue's target: at most 0.05 false
+window. Nothing is composited: every detection is false. The requirement: at most 0.05 false
 detections per frame.
 
 Detectors are given as for ``eaglemission bench`` (``NAME``, ``NAME@preset``, ``--params``);
 by default the mission's (configs/sitl_synthetic.yaml's detector, at the runner's
 ``detector_downscale`` 2, with the mission's ``target.appearance_image`` unless ``--target-image``
 is given) and SR. Photos are the ground the mission's simulated world
-may use (issue 14), so the two sites are reported separately: tune on one, test on the other.
+may use, so the two sites are reported separately: tune on one, test on the other.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, CameraMount, euler_to_quat
 
 CAMERAS = {"wide": 2.8, "narrow": 12.0}
-GROUND_M_PER_PX = {"wide": 0.008, "narrow": 0.002}  # near the target (issue 14)
+GROUND_M_PER_PX = {"wide": 0.008, "narrow": 0.002}  # near the target
 
 
 def frames(world: SyntheticWorld, cid: str, n: int) -> tuple[list[np.ndarray], float]:

@@ -6,7 +6,7 @@
 Prints, per link: the median / 90th percentile of a bounded command round trip through the
 driver (``set_param`` = PARAM_SET -> PARAM_VALUE, and arm/disarm = COMMAND_LONG ->
 COMMAND_ACK + the HEARTBEAT confirming it), the rates at which position and attitude samples
-reach the driver's history (requested: 50 Hz; issue 6 asks for >= 50 Hz), and how long after
+reach the driver's history (requested: 50 Hz; the requirement is >= 50 Hz), and how long after
 the last fresh setpoint the offboard watchdog has the emulator in HOLD with the event loop
 *blocked* (``time.sleep`` in the loop; configured timeout 0.5 s). Wall-clock figures on a shared
 machine: compare them within one run, not across machines.

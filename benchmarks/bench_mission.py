@@ -1,4 +1,4 @@
-"""Mission figures of issue 7, printed (never asserted): speed-up over real time, time to
+"""Mission figures, printed (never asserted): speed-up over real time, time to
 GRASP_READY, true tool-point errors, frame-to-setpoint latency, and the detection rate of the
 static target with the mission defaults (cruise, deceleration, 5 s hover) plus false
 detections per frame on a target-free flight.
@@ -74,7 +74,7 @@ def scripted_path(cfg: MissionFile, rate_hz: float, *, hover_s: float = 5.0):
 
 
 def detection_rate(cfg: MissionFile, *, target_free: bool = False) -> dict[str, tuple[int, int, int]]:
-    params = ApproachConfig.model_validate(dict(cfg.mission.params))
+    params = ApproachConfig.of(cfg).perception
     sim = world_config(cfg)
     if target_free:
         sim = sim.model_copy(update={"target_north_m": -30.0, "target_east_m": 0.0})
@@ -121,7 +121,7 @@ def main() -> None:
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
     cfg = _with_detector(load_config(args.config), args.detector, args.downscale)
-    params = ApproachConfig.model_validate(dict(cfg.mission.params))
+    params = ApproachConfig.of(cfg).perception
     print(f"detector: {cfg.detector.type} {dict(cfg.detector.params)}, "
           f"process rate {params.process_rate_hz} Hz, frames "
           f"{cfg.cameras.wide.resolution_px[0]}x{cfg.cameras.wide.resolution_px[1]}")

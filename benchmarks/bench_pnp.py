@@ -13,7 +13,7 @@ Usage::
     python benchmarks/bench_pnp.py --trials 50     # reduced
     python benchmarks/bench_pnp.py --quick         # smoke run (20 trials, fewer cells)
 
-Targets checked at the end (issue 4): noise-free exactness; n = 4 ordinary sigma = 2 px mean
+Targets checked at the end: noise-free exactness; n = 4 ordinary sigma = 2 px mean
 rotation error below SQPnP's; with refinement n >= 10 medians within 10% of SQPnP's; speed at
 n = 4 <= 4x SQPnP per solve, n = 1000 <= 20x n = 10.
 """

@@ -11,7 +11,7 @@ the wall-time slowdown ratio (virtual time: how much longer the recorded flight 
 machine; with ``--realtime`` the frame-to-setpoint latency p90 instead), the frames processed
 by each (they must be equal), the frames the recorder dropped, the file's size per second of
 flight, and the size per second the two 1280x960 cameras would take if both were processed at
-the mission's ``process_rate_hz`` all flight long (the mission grabs a camera only while its
+the mission's ``perception.process_rate_hz`` all flight long (the mission grabs a camera only while its
 state needs it, so the recorded figure is lower). ``--short``: the coarse approach times out
 after 4 s (a ~27 s flight, FAILSAFE), for a quick look. ``--pairs N`` flies N pairs
 (without, with, without, with...: a load that changes during the run hits both alike) and
@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.mission import ApproachOutcome
 from mcap.records import Channel, Message
 
@@ -76,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="interleaved pairs of flights (without, with recording)")
     args = ap.parse_args(argv)
     cfg = _config(args.detector, args.short)
-    rate = float(cfg.mission.params.get("process_rate_hz", 8.0))
+    rate = ApproachConfig.of(cfg).perception.process_rate_hz
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"
         _fly(_config(args.detector, True), None, False)  # warm-up: JIT, caches (untimed)
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     ob, orec = base.outcome, rec.outcome
     stats = rec.recording or {}
     flight_s = orec.sim_s
-    print(f"mission: {cfg.detector.type} detector, process_rate_hz {rate:g}, "
+    print(f"mission: {cfg.detector.type} detector, perception.process_rate_hz {rate:g}, "
           f"{'wall clock' if args.realtime else 'virtual time'}, JPEG quality {args.quality}")
     print(f"flight: {flight_s:.1f} s, final state {orec.final_state} (unrecorded: "
           f"{ob.final_state})")

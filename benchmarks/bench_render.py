@@ -44,7 +44,7 @@ def trajectory(cfg, n: int) -> list[tuple[tuple[float, float, float], tuple[floa
             yaw = 0.0
         else:  # approach: to the stand-off
             a = (s - 0.5) * 2
-            so = ApproachConfig.of(cfg).standoff
+            so = ApproachConfig.of(cfg).guidance.standoff
             start = np.array([tn - 8.0, 0.0, -cfg.mission.cruise_altitude_m])
             end = np.array([tn - so.horizontal_m, te, -(so.height_m + cfg.target.height_m)])
             p = start + a * (end - start)

@@ -1,5 +1,5 @@
 """Where the wall time of a closed-loop simulation goes, and the speed paths against the
-straightforward ones they replaced, measured in the same run (issue 7: ``eaglemission run`` at
+straightforward ones they replaced, measured in the same run (the requirement: ``eaglemission run`` at
 >= 10x real time; frame-to-setpoint latency p90 <= 18.5 ms at 1280x960).
 
     python benchmarks/bench_sim_speed.py [CONFIG] [--detector NAME] [--downscale K]
@@ -70,7 +70,7 @@ def mission_poses(cfg: MissionFile) -> list[tuple[str, tuple[float, float, float
     sim = world_config(cfg)
     tn, te = sim.target_north_m, sim.target_east_m
     alt = cfg.mission.cruise_altitude_m
-    so = ApproachConfig.of(cfg).standoff
+    so = ApproachConfig.of(cfg).guidance.standoff
     return [("cruise", (tn - 12.0, 0.0, -alt), attitude_from_acceleration((1.0, 0.0, 0.0), 0.0)),
             ("standoff", (tn - so.horizontal_m, te, -(so.height_m + cfg.target.height_m)),
              attitude_from_acceleration((0.0, 0.0, 0.0), 0.0)),

@@ -59,7 +59,6 @@ def main() -> None:
     ap.add_argument("--last", type=int, default=25)
     ap.add_argument("--ablate", default="", help="comma list of error sources to switch off: "
                     "focal,mount,drift,wind,offset")
-    ap.add_argument("--planes", action="store_true", help="print the plane measurements")
     a = ap.parse_args()
     logging.disable(logging.WARNING)
     cfg = campaign_config(a.config, a.seed, a.run) if a.run >= 0 else load_config(a.config)
@@ -109,14 +108,6 @@ def main() -> None:
     for t, cam, rng_m, err, e_v, src in fine[-a.last:]:
         print(f"{t:7.2f} {cam:6s} r {rng_m:5.2f}  err N {err[0]*100:+6.1f} E {err[1]*100:+6.1f} "
               f"D {err[2]*100:+6.1f} cm  veh_err D {e_v[2]*100:+5.1f}  {src[:60]}")
-    if a.planes:
-        for r in out.log.records:
-            if r.get("kind") == "plane":
-                truth_m = veh_err(r["frame_t_ns"])[2]
-                print(f"PLANE {r['camera']:6s} r {r['range_m']:5.2f} cost {r['cost']:.2f} "
-                      f"{r['region']:3s} meas {r['measured_m']*100:+6.1f} truth {truth_m*100:+6.1f}"
-                      f" err {(r['measured_m']-truth_m)*100:+6.1f} cm  "
-                      f"offset {r['offset_m']*100:+5.1f}")
     t_gr = out.result.t_grasp_ready_s
     if t_gr is not None:
         e = veh_err(out.t0_ns + t_gr * 1e9)

@@ -1,8 +1,8 @@
-"""Fault campaign figures (issue 16): ``--faults all`` over N simulated runs in virtual time.
+"""Fault campaign figures: ``--faults all`` over N simulated runs in virtual time.
 
 Prints the per-fault table (runs, end states, runs in their expected outcome, time to the safe
 state, true envelope violations, complete logs), the share of tolerable faults completed and
-the failures; exits 1 when a run missed its expected outcome. The issue's figure is 1,000 runs:
+the failures; exits 1 when a run missed its expected outcome. The full figure is 1,000 runs:
 
     python benchmarks/fault_campaign.py --runs 1000 --workers 2 --binning 2
     python benchmarks/fault_campaign.py --runs 50 --workers 2 --binning 2 --vehicle emulator \

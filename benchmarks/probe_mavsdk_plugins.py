@@ -1,6 +1,6 @@
 """Probe what an ordinary MAVSDK 4.1 client gets from an autopilot, plugin by plugin: PX4 v1.16
-SITL or the PX4-like emulator, so the two can be compared (issue 13: "a MAVSDK client that
-flies PX4 flies the emulator the same way").
+SITL or the PX4-like emulator, so the two can be compared (a MAVSDK client that flies PX4
+must fly the emulator the same way: tests/drivers/vehicles/test_px4_probed_mavsdk.py).
 
     # a fresh PX4 SITL (SIH) whose API link sends to 14541 (instance 1)
     python benchmarks/probe_mavsdk_plugins.py --url udpin://0.0.0.0:14541 --tap --out px4.json

@@ -6,10 +6,10 @@ One flight: take off, offboard to ``--height-m`` above the ground, then two hold
 ``--hold-s`` each at the same point:
 
 * ``estimate``: the setpoint's altitude is the EKF's (relative to home), as a NED setpoint
-  stream does (what the mission did before the rangefinder reference);
+  stream without the rangefinder reference does;
 * ``rangefinder``: the setpoint's altitude is corrected every cycle by the downward range
   (``altitude + (range x cos tilt - height)``, low-passed), as the mission's plane filter does
-  with ``plane_offset_drift_mps`` sized for PX4's EKF (docs/vehicles.md).
+  with ``plane.drift_mps`` sized for PX4's EKF (docs/vehicles.md).
 
 Judged on HIL_STATE_QUATERNION (simulator truth; height = truth altitude above the take-off
 point): horizontal wander about its own mean (RMS, max) and height error (mean, RMS, min), the

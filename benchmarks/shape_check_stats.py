@@ -1,12 +1,12 @@
 """The shape check's margins over a campaign's stored run logs (``campaign --out DIR`` or
 ``fault_campaign.py --out DIR``).
 
-Each run's ``heading`` records (one per complete close view, logged with the checks on or
+Each run's ``heading`` records (one per complete close view, logged with the check on or
 off) are split into candidates (``views`` starts again at 1 for each); a candidate is the true
 target when the median of the mission's estimates logged during its views lies within
 ``--near-m`` of the target's true place (the run's ``sim`` block). Prints, for true targets and
 for other candidates, the lowest running median silhouette IoU the check saw (what
-``silhouette_min_iou`` is compared with), the rejections the check made, and the runs whose
+``tracking.shape.min_iou`` is compared with), the rejections the check made, and the runs whose
 GRASP_READY was not over the target::
 
     python benchmarks/shape_check_stats.py DIR [--near-m 1.0] [--threshold 0.86]
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("folder", type=Path)
     ap.add_argument("--near-m", type=float, default=1.0)
     ap.add_argument("--threshold", type=float, default=0.86,
-                    help="silhouette_min_iou to count margins against")
+                    help="tracking.shape.min_iou to count margins against")
     args = ap.parse_args(argv)
     results = sorted(args.folder.glob("run_*.result.json"))
     if not results:

@@ -1,7 +1,7 @@
 """Soak: back-to-back simulated missions for a wall time, with the process's resources after
 each: RSS, open file descriptors, threads, and the peak of asyncio tasks during the flight.
 
-    python benchmarks/soak.py --minutes 60                      # the issue's hour
+    python benchmarks/soak.py --minutes 60                      # an hour
     python benchmarks/soak.py --minutes 10 --config configs/sitl_synthetic.yaml
 
 Each mission flies through the library API (``fly_sync``, as ``eaglemission run`` does) in

@@ -3,7 +3,7 @@ rotated by the camera mount and the vehicle attitude at mid-exposure, meets a ho
 of the target box (ground flat at home's height, docs/conventions.md), giving north/east in
 metres. A ray at or above the horizon gives a failure value, never a far-away point.
 
-Which plane: the issue asks for the target's top height (``plane_height_fraction: 1``), right
+Which plane: the natural choice is the target's top height (``plane_height_fraction: 1``), right
 for a detection centred on the top face. A saliency detector's MBR bounds the box's silhouette,
 whose centre is close to the projection of the box's centroid: against the synthetic world
 (wide camera, 150 views, 0-30 m) the top plane gives median horizontal errors of 5-24 cm

@@ -3,9 +3,10 @@ target's top.
 
 A saliency detector's MBR bounds either the target's top face alone (a bright top over shaded
 sides) or the whole box silhouette (top + the side faces the tilted camera sees), depending on
-lighting, texture and heading. Measured against the synthetic world's truth (campaign seed 7,
-wide camera, 1-13 m): run 0's detections were centred on the top face (within 2 px), run 1's
-on the silhouette, 15-20 px apart at 2 m. A fixed intersection plane (the bearing estimator's
+lighting, texture and heading. Measured against the synthetic world's truth (the first two
+worlds of ``eaglemission campaign --seed 7``, wide camera, 1-13 m): the first world's detections
+were centred on the top face (within 2 px), the second's on the silhouette, 15-20 px apart at
+2 m. A fixed intersection plane (the bearing estimator's
 mid-height default) is then off by ``h / 2 / tan(depression)`` either way: 7-9 cm along the
 line of sight at 1-2.5 m, the main horizontal error of the final approach.
 
@@ -320,12 +321,14 @@ def silhouette_iou(model: CameraModel, cam_ned: Pose, hull_px: ArrayLike, top_do
     headings ``coarse_step_deg`` apart, then ``fine_step_deg`` apart around the best. Returns
     the best (IoU, heading deg in [0, 180), region), None when no model projects or the
     outline's minimum-area rectangle is narrower than ``min_side_px`` (a region a few pixels
-    across has little shape: measured over 200 campaign runs, true targets' IoUs have their
-    1st percentile at 0.89 for 20-30 px, 0.91 for 30-50 px and 0.96 above 100 px).
+    across has little shape: over ``benchmarks/fault_campaign.py --runs 200 --seed 3 --binning 2``
+    true targets' IoUs have their 1st percentile at 0.89 for 20-30 px, 0.91 for 30-50 px and
+    0.96 above 100 px; docs/mission.md, "Candidate rejection by shape").
 
     A region's minimum bounding rectangle has three numbers (two sides and a direction), which
     a box of another shape but the target's colour and top area can match at some heading
-    (campaign run 521: a 0.32 m square box for the 0.40 x 0.25 m target); its outline cannot:
+    (a 0.32 m square box for the 0.40 x 0.25 m target: tests/missions/test_candidate_rejection.py);
+    its outline cannot:
     such a box's best IoU stays near 0.8 where the target's is near 1 (docs/mission.md).
     """
     det = np.asarray(hull_px, dtype=np.float32).reshape(-1, 2)

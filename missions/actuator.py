@@ -17,7 +17,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.approach_config import GraspConfig, TimeoutsConfig
 from eaglemission.missions.guidance import Guidance
 from eaglemission.missions.log import MissionLog
 
@@ -64,13 +64,16 @@ def failsafe_param_warnings(values: dict[str, float], safety: SafetyConfig) -> l
 
 
 class Actuator:
-    """Executes the mission's vehicle commands in order (one task)."""
+    """Executes the mission's vehicle commands in order (one task), bounded by ``timeouts``;
+    the grasp as ``grasp.action`` says, then held for ``grasp_hold_s``."""
 
-    def __init__(self, cfg: MissionFile, params: ApproachConfig, vehicle: Vehicle, clock: Clock,
-                 mission_log: MissionLog, guidance: Guidance,
+    def __init__(self, cfg: MissionFile, vehicle: Vehicle, clock: Clock,
+                 mission_log: MissionLog, guidance: Guidance, *, grasp: GraspConfig,
+                 timeouts: TimeoutsConfig, grasp_hold_s: float,
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
                  guard: AutopilotGuard | None = None) -> None:
-        self.cfg, self.p, self.m = cfg, params, cfg.mission
+        self.cfg, self.m = cfg, cfg.mission
+        self.grasp_p, self.timeouts, self.grasp_hold_s = grasp, timeouts, grasp_hold_s
         self.vehicle, self.clock, self.log = vehicle, clock, mission_log
         self.guidance = guidance
         self.grasp_callback = grasp_callback
@@ -82,11 +85,11 @@ class Actuator:
         self.offboard_since_ns = 0
         self.grasp_done = False
         self.final_sent = False
-        self.settle_s = params.settle_timeout_s
+        self.settle_s = timeouts.settle_s
         self.failsafe_params: dict[str, float] | None = None
         self.failsafe_warnings: list[str] = []
         self.guard = guard or AutopilotGuard(self._inner(), cfg.safety, self.m.cruise_altitude_m,
-                                             timeout_s=params.timeouts.command_s)
+                                             timeout_s=timeouts.command_s)
         self.refused = ""
         self.on_grasp_done: Callable[[], None] | None = None
 
@@ -99,7 +102,7 @@ class Actuator:
         return inner
 
     async def command(self, name: str, coro_fn: Callable[[], Awaitable[Any]]) -> bool:
-        timeout = self.p.timeouts.command_s
+        timeout = self.timeouts.command_s
         try:
             await asyncio.wait_for(coro_fn(), timeout=timeout)
         except (errors.DriverError, TimeoutError) as exc:  # refused, or a bounded wait ran out
@@ -144,17 +147,17 @@ class Actuator:
                 return
 
     async def grasp(self) -> None:
-        action = self.p.grasp_action
+        action = self.grasp_p.action
         if action == "gripper":
             await self.command("grab", self.vehicle.grab)
         elif action == "callback" and self.grasp_callback is not None:
             try:
-                await asyncio.wait_for(self.grasp_callback(), timeout=self.p.timeouts.grasp_ready_s)
+                await asyncio.wait_for(self.grasp_callback(), timeout=self.timeouts.grasp_ready_s)
                 self.log.write("command", name="grasp_callback", ok=True)
             except Exception as exc:  # a user callback must not crash the mission
                 self.log.write("command", name="grasp_callback", ok=False, error=repr(exc))
         # hold the grasp pose on the live estimate for the stable period before leaving
-        await self.clock.sleep(max(0.0, self.p.grasp_stable_frames / self.p.process_rate_hz))
+        await self.clock.sleep(max(0.0, self.grasp_hold_s))
         self.grasp_done = True
         if self.on_grasp_done is not None:
             self.on_grasp_done()

@@ -4,8 +4,8 @@ States are an :class:`MissionState` enum and every transition lives in ONE table
 :data:`TRANSITIONS`, built with ``transitions`` (``auto_transitions=False``: no ``to_<state>()``
 can bypass a guard). Guards are pure predicates on a frozen :class:`Snapshot` that the runner
 assembles from telemetry, perception and the filter; per-state timeouts come from
-``mission.timeouts``; ``abort`` is allowed from every non-final state and carries the reason
-and the configured safe action.
+``mission.params.timeouts``; ``abort`` is allowed from every non-final state and carries the
+reason and the configured safe action.
 
 Design choice (STYLE.md item 13): the machine is the synchronous ``transitions.Machine``,
 stepped by the runner's control task on the mission clock, not an ``AsyncMachine``.
@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.approach_config import ActionsConfig
 from transitions import Machine
 
 from eaglemission.config import SafetyConfig
@@ -100,7 +100,7 @@ class StatePolicy:
     """Our setpoints fly the vehicle (a flight-mode change by anyone else is a pilot override)."""
     airborne: bool = False
     confirms: bool = False
-    """Wide-camera estimates count towards ``confirm_frames``."""
+    """Wide-camera estimates count towards ``tracking.confirm_frames``."""
     reacquires: bool = False
     """Confirmation counts only estimates near where the target was lost."""
     tracks: bool = False
@@ -115,7 +115,7 @@ class StatePolicy:
     tool_errors: bool = False
     """The mission's own tool-point errors are computed (fine approach on)."""
     grasp_check: bool = False
-    """Tool-point stability is counted towards ``grasp_stable_frames``."""
+    """Tool-point stability is counted towards ``grasp.stable_frames``."""
     trim: bool = False
     """The grasp pose's integral trim runs."""
     rangefinder: bool = False
@@ -123,7 +123,7 @@ class StatePolicy:
     camera_watch: bool = False
     """A needed camera that stops delivering is a camera failure."""
     timeout_field: str | None = None
-    """``mission.timeouts`` field bounding the state."""
+    """``mission.params.timeouts`` field bounding the state."""
     timeout_from: MissionState | None = None
     """The state's timer runs from this state's entry (the fine approach is one budget)."""
     on_enter: tuple[str, ...] = ()
@@ -219,8 +219,8 @@ class Snapshot:
     grasp_done: bool = False
     search_exhausted: bool = False
     candidate_rejected: bool = False
-    """The loss that entered TARGET_LOST was ``max_target_losses``-th near one place: that
-    candidate is rejected (``TargetTracking.count_loss``)."""
+    """The loss that entered TARGET_LOST was the ``tracking.max_losses``-th near one place, or
+    at a candidate of the wrong shape: that candidate is rejected (``TargetTracking``)."""
     target_losses: int = 0
     """Losses counted near the place of the latest one."""
     on_target_lost: str = "resume_cruise"
@@ -343,13 +343,15 @@ class Abort:
 
 
 def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
-             params: ApproachConfig) -> Abort | None:
-    """The failsafe that applies in ``state`` (pure; first match in priority order).
+             actions: ActionsConfig) -> Abort | None:
+    """The failsafe that applies in ``state`` (pure; first match in priority order), with the
+    safe actions of ``safety`` and of the mission's ``actions``.
 
     Priority: the operator's interrupt, link loss, autopilot failover, GPS loss, low battery,
-    the offboard watchdog's own HOLD, pilot mode change, camera failure, geofence, refused command, a rejected candidate (when
-    ``on_target_lost`` is not ``resume_cruise``), state timeout, route end without target. On the ground (PREFLIGHT) the
-    action is ``none``: the vehicle is never armed.
+    the offboard watchdog's own HOLD, pilot mode change, camera failure, geofence, refused
+    command, a rejected candidate (when ``on_target_lost`` is not ``resume_cruise``), state
+    timeout, route end without target. On the ground (PREFLIGHT) the action is ``none``: the
+    vehicle is never armed.
     """
     if state in FINAL_STATES:
         return None
@@ -371,29 +373,30 @@ def failsafe(state: MissionState, s: Snapshot, safety: SafetyConfig,
         return Abort(f"battery low ({s.battery_remaining:.0%})", act(safety.low_battery_action))
     if s.watchdog_hold and not on_ground:  # our own HOLD, not a pilot's: no one flies it
         return Abort(f"offboard watchdog commanded HOLD: {s.watchdog_hold}",
-                     act(params.timeout_action))
+                     act(actions.on_timeout))
     if s.pilot_override:
         return Abort("flight mode changed by the pilot or the autopilot: stop commanding",
                      "release")
     if s.camera_failed:
-        return Abort("camera failure: no frames", act(params.camera_failure_action))
+        return Abort("camera failure: no frames", act(actions.on_camera_failure))
     if not s.goal_inside_geofence:
-        return Abort("the approach goal lies outside the geofence", act(params.geofence_action))
+        return Abort("the approach goal lies outside the geofence", act(actions.on_geofence))
     if s.command_failed:
-        return Abort(f"command failed: {s.command_failed}", act(params.timeout_action))
-    if state is S.TARGET_LOST and s.candidate_rejected and params.on_target_lost != "resume_cruise":
+        return Abort(f"command failed: {s.command_failed}", act(actions.on_timeout))
+    if (state is S.TARGET_LOST and s.candidate_rejected
+            and actions.on_target_lost != "resume_cruise"):
         return Abort(f"target lost {s.target_losses} times at one place: candidate rejected",
-                     act(params.on_target_lost))
+                     act(actions.on_target_lost))
     if state_timed_out(s):
         if state is S.TARGET_LOST:
-            if params.on_target_lost == "resume_cruise":
+            if actions.on_target_lost == "resume_cruise":
                 return None  # handled by the resume_cruise transition
             return Abort(f"target lost for {s.time_in_state_s:.1f} s",
-                         act(params.on_target_lost))
+                         act(actions.on_target_lost))
         return Abort(f"{state.value} timed out after {s.state_timeout_s:g} s",
-                     act(params.timeout_action))
+                     act(actions.on_timeout))
     if state is S.CRUISE and route_finished(s):
-        return Abort("route finished without a confirmed target", act(params.route_end_action))
+        return Abort("route finished without a confirmed target", act(actions.on_route_end))
     return None
 
 
@@ -461,7 +464,7 @@ class ApproachMachine:
         return POLICIES[self.state]
 
     def outcome_action(self, on_done: str) -> str:
-        """The action that ends the flight: the failsafe's, else ``mission.on_done``."""
+        """The action that ends the flight: the failsafe's, else ``actions.on_done``."""
         return self.action if self.state is S.FAILSAFE else on_done
 
 

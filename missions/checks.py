@@ -70,24 +70,26 @@ def check_mission_geometry(cfg: MissionFile) -> list[str]:
     target_top = (0.0, 0.0, -t.height_m)  # a target at the origin; the geometry is relative
     # 1. standoff: both cameras must see the whole target
     yaw = 0.0
-    standoff = standoff_position(target_top, yaw, a.standoff.horizontal_m, a.standoff.height_m)
+    so = a.guidance.standoff
+    standoff = standoff_position(target_top, yaw, so.horizontal_m, so.height_m)
     for name, model in (("narrow", narrow), ("wide", wide)):
         ok, angle = _footprint_in_view(model, standoff, yaw, target_top, half_diag)
         if not ok:
             half_v = model.fov_deg[1] / 2
-            depression = math.degrees(math.atan2(a.standoff.height_m, a.standoff.horizontal_m))
+            depression = math.degrees(math.atan2(so.height_m, so.horizontal_m))
             tilt = -model.mount.pitch_deg
             hint = (f"for this camera's {tilt:g} deg tilt use height_m ~ "
-                    f"{a.standoff.horizontal_m * math.tan(math.radians(tilt)):.2f} for "
-                    f"horizontal_m={a.standoff.horizontal_m:g}")
+                    f"{so.horizontal_m * math.tan(math.radians(tilt)):.2f} for "
+                    f"horizontal_m={so.horizontal_m:g}")
             problems.append(
-                f"mission.params.standoff: from the standoff (horizontal_m={a.standoff.horizontal_m:g}, "
-                f"height_m={a.standoff.height_m:g}) the target is {depression:.1f} deg below the "
-                f"horizon, {angle:+.1f} deg off the {name} camera's axis, outside its "
+                f"mission.params.guidance.standoff: from the standoff (horizontal_m="
+                f"{so.horizontal_m:g}, height_m={so.height_m:g}) the target is "
+                f"{depression:.1f} deg below the horizon, {angle:+.1f} deg off the {name} "
+                f"camera's axis, outside its "
                 f"+-{half_v:.1f} deg vertical view (whole target footprint needed): {hint}")
     # 2. altitude band: standoff and grasp pose altitudes (above home) inside the band
-    alt_standoff = t.height_m + a.standoff.height_m
-    grasp = grasp_position(target_top, yaw, cfg.tool_point_m, a.grasp_distance_m)
+    alt_standoff = t.height_m + so.height_m
+    grasp = grasp_position(target_top, yaw, cfg.tool_point_m, a.grasp.distance_m)
     alt_grasp = -grasp[2]
     for name, alt in (("standoff", alt_standoff), ("grasp pose", alt_grasp)):
         if not (s.min_altitude_m + VERTICAL_MARGIN_M <= alt <= s.max_altitude_m - VERTICAL_MARGIN_M):
@@ -96,7 +98,7 @@ def check_mission_geometry(cfg: MissionFile) -> list[str]:
                 f"(target height + mission geometry), outside the band "
                 f"[{s.min_altitude_m:g}, {s.max_altitude_m:g}] less the envelope's "
                 f"{VERTICAL_MARGIN_M:g} m margin: widen the band or change "
-                f"mission.params.standoff / grasp_distance_m")
+                f"mission.params.guidance.standoff / grasp.distance_m")
     tilt_w = math.radians(-wide.mount.pitch_deg)
     if tilt_w > 0:
         axis_range = m.cruise_altitude_m / math.sin(tilt_w)
@@ -115,18 +117,17 @@ def check_mission_geometry(cfg: MissionFile) -> list[str]:
         yaw = yaw_towards_deg(start, (tn, te)) if math.dist(start, (tn, te)) > 1e-6 else 0.0
         tgt = (tn, te, -t.height_m)
         env = envelope_of(cfg)
-        for name, p in (("standoff", standoff_position(tgt, yaw, a.standoff.horizontal_m,
-                                                        a.standoff.height_m)),
+        for name, p in (("standoff", standoff_position(tgt, yaw, so.horizontal_m, so.height_m)),
                         ("grasp pose", grasp_position(tgt, yaw, cfg.tool_point_m,
-                                                      a.grasp_distance_m))):
+                                                      a.grasp.distance_m))):
             if not env.safe_h(p[0], p[1]):
                 problems.append(
                     f"safety.geofence: the {name} for the simulated target "
                     f"({p[0]:.1f}, {p[1]:.1f}) lies outside the fence less the envelope's "
                     f"{env.margin_m:.1f} m margin: the target could not be approached with the "
                     f"cameras on it; enlarge the fence or move the target")
-    if a.approach_speed_mps > s.max_horizontal_speed_mps:
-        problems.append(f"mission.params.approach_speed_mps: exceeds "
+    if a.guidance.approach_speed_mps > s.max_horizontal_speed_mps:
+        problems.append(f"mission.params.guidance.approach_speed_mps: exceeds "
                         f"safety.max_horizontal_speed_mps ({s.max_horizontal_speed_mps}), got "
-                        f"{a.approach_speed_mps}")
+                        f"{a.guidance.approach_speed_mps}")
     return problems

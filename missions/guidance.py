@@ -1,5 +1,6 @@
 """Guidance of the approach mission: pure functions (route carrot, standoff, grasp pose, tool
-point) and :class:`Guidance`, which owns the goal, the trim and the tilt compensation. Frames and units: docs/conventions.md (local NED, body FRD, yaw from north to east).
+point) and :class:`Guidance`, which owns the goal, the trim and the tilt compensation. Frames
+and units: docs/conventions.md (local NED, body FRD, yaw from north to east).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from eaglemission.geometry import quat_to_R, wrap_deg
 from eaglemission.types import XYZ, Quat, Setpoint
 
 if TYPE_CHECKING:
-    from eaglemission.missions.approach_config import ApproachConfig
+    from eaglemission.missions.approach_config import GuidanceConfig
 
     from eaglemission.config import MissionFile
 
@@ -134,41 +135,25 @@ def yaw_step_deg(current_deg: float, goal_deg: float, max_step_deg: float) -> fl
 # The approach's guidance: goals per state policy, carrot, trim, tilt compensation
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
-class GuidanceConfig:
-    """What guidance needs of the mission file (plain values)."""
+class Plan:
+    """What guidance follows of the mission file besides its ``guidance`` params: the route,
+    the cruise, the tool point and the grasp distance (plain values)."""
 
     route_ne_m: tuple[tuple[float, float], ...]
     cruise_altitude_m: float
     cruise_speed_mps: float
-    approach_speed_mps: float
-    standoff_horizontal_m: float
-    standoff_height_m: float
     tool_point_m: XYZ
     grasp_distance_m: float
-    final_speed_mps: float
-    yaw_rate_degps: float
-    fine_standoff_tolerance_m: float
-    tilt_compensation: bool
-    trim_gain_per_s: float
-    trim_max_m: float
 
     @classmethod
-    def of(cls, cfg: MissionFile, params: ApproachConfig) -> GuidanceConfig:
-        """From a mission file and the approach's params."""
+    def of(cls, cfg: MissionFile, grasp_distance_m: float) -> Plan:
+        """From a mission file and the approach's ``grasp.distance_m``."""
         m = cfg.mission
         return cls(route_ne_m=tuple((w.north_m, w.east_m) for w in m.route),
                    cruise_altitude_m=m.cruise_altitude_m, cruise_speed_mps=m.cruise_speed_mps,
-                   approach_speed_mps=params.approach_speed_mps,
-                   standoff_horizontal_m=params.standoff.horizontal_m,
-                   standoff_height_m=params.standoff.height_m,
                    tool_point_m=(float(cfg.tool_point_m[0]), float(cfg.tool_point_m[1]),
                                  float(cfg.tool_point_m[2])),
-                   grasp_distance_m=params.grasp_distance_m, final_speed_mps=params.final_speed_mps,
-                   yaw_rate_degps=params.yaw_rate_degps,
-                   fine_standoff_tolerance_m=params.fine_standoff_tolerance_m,
-                   tilt_compensation=params.tilt_compensation,
-                   trim_gain_per_s=params.grasp_trim_gain_per_s,
-                   trim_max_m=params.grasp_trim_max_m)
+                   grasp_distance_m=grasp_distance_m)
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,9 +170,9 @@ class Guidance:
     search sweep, standoff, grasp pose), yaw rate limited, with the grasp pose's tilt
     compensation and integral trim. Loop thread only."""
 
-    def __init__(self, cfg: GuidanceConfig) -> None:
-        self.c = cfg
-        self.route_len_m = route_length_m(cfg.route_ne_m)
+    def __init__(self, plan: Plan, params: GuidanceConfig) -> None:
+        self.plan, self.p = plan, params
+        self.route_len_m = route_length_m(plan.route_ne_m)
         self.route_s_m = 0.0
         self.carrot: XYZ | None = None
         self.carrot_yaw_deg = 0.0
@@ -209,18 +194,19 @@ class Guidance:
         return setpoint_at(position_ned_m, yaw_deg)
 
     def resume_route_from(self, north_m: float, east_m: float) -> None:
-        self.route_s_m = max(self.route_s_m, along_route_m(self.c.route_ne_m, north_m, east_m))
+        self.route_s_m = max(self.route_s_m, along_route_m(self.plan.route_ne_m, north_m, east_m))
 
-    def search_route_again(self, max_passes: int) -> str | None:
+    def search_route_again(self) -> str | None:
         """Fly the route again from its start once it ends (a candidate on it was rejected:
-        the target may have been passed unconfirmed), unless ``max_passes`` are flown or
+        the target may have been passed unconfirmed), unless ``max_route_passes`` are flown or
         granted; what to log, None when not granted."""
+        max_passes = self.p.max_route_passes
         if self.passes >= max_passes:
             return None
         self.passes += 1
         self.passes_left += 1
         return (f"route to be searched again from its start when it ends (pass {self.passes} "
-                f"of max_route_passes={max_passes})")
+                f"of guidance.max_route_passes={max_passes})")
 
     def new_approach(self) -> None:
         self.approach_yaw_deg = None
@@ -234,12 +220,12 @@ class Guidance:
     def route_finished(self, position_ned_m: XYZ) -> bool:
         if self.passes_left or self._to_start or self.route_s_m < self.route_len_m - 1e-6:
             return False
-        return math.dist(position_ned_m[:2], self.c.route_ne_m[-1]) < 1.5
+        return math.dist(position_ned_m[:2], self.plan.route_ne_m[-1]) < 1.5
 
     def standoff_ned_m(self, target_ned_m: XYZ) -> XYZ:
         assert self.approach_yaw_deg is not None
         return standoff_position(target_ned_m, self.approach_yaw_deg,
-                                 self.c.standoff_horizontal_m, self.c.standoff_height_m)
+                                 self.p.standoff.horizontal_m, self.p.standoff.height_m)
 
     # -- goals -------------------------------------------------------------------------------
     def goal(self, kind: str, position_ned_m: XYZ, yaw_deg: float, attitude_q: Quat,
@@ -247,7 +233,7 @@ class Guidance:
              ) -> tuple[XYZ, float, float] | None:
         """(goal position, goal yaw, speed) for a goal kind (``Goal`` names of the state
         policy), None when there is none (no target yet)."""
-        c = self.c
+        c, p = self.plan, self.p
         if kind == "ROUTE":
             start = route_point(c.route_ne_m, 0.0)
             if (self.passes_left and self.route_s_m >= self.route_len_m - 1e-6
@@ -268,33 +254,32 @@ class Guidance:
             centre = self._search_centre or position_ned_m
             base = self.approach_yaw_deg if self.approach_yaw_deg is not None else yaw_deg
             sweep = 40.0 * math.sin(2 * math.pi * (now_ns - self._search_t0_ns) * 1e-9 / 8.0)
-            return centre, base + sweep, c.approach_speed_mps
+            return centre, base + sweep, p.approach_speed_mps
         if target_ned_m is None:
             return None
         if kind == "APPROACH":  # the heading follows the target
             self.approach_yaw_deg = yaw_towards_deg(position_ned_m, target_ned_m)
-            return self.standoff_ned_m(target_ned_m), self.approach_yaw_deg, c.approach_speed_mps
+            return self.standoff_ned_m(target_ned_m), self.approach_yaw_deg, p.approach_speed_mps
         if kind == "STANDOFF":  # the heading stays as the fine approach found it
             if self.approach_yaw_deg is None:
                 self.approach_yaw_deg = yaw_towards_deg(position_ned_m, target_ned_m)
-            return self.standoff_ned_m(target_ned_m), self.approach_yaw_deg, c.approach_speed_mps
+            return self.standoff_ned_m(target_ned_m), self.approach_yaw_deg, p.approach_speed_mps
         if kind == "GRASP":
             if self.approach_yaw_deg is None:
                 self.approach_yaw_deg = yaw_towards_deg(position_ned_m, target_ned_m)
             yaw = self.approach_yaw_deg
-            grasp = grasp_position(target_ned_m, yaw, c.tool_point_m, c.grasp_distance_m)
-            if c.tilt_compensation:
-                # the vehicle leans into the wind: put the TILTED tool point over the target
-                off = self._tool_offset(attitude_q, dt_s)
-                grasp = (target_ned_m[0] - off[0], target_ned_m[1] - off[1],
-                         target_ned_m[2] - c.grasp_distance_m - off[2])
-            return grasp, yaw, c.final_speed_mps
+            # the vehicle leans into the wind: put the TILTED tool point over the target (at
+            # level attitude this is grasp_position's goal)
+            off = self._tool_offset(attitude_q, dt_s)
+            grasp = (target_ned_m[0] - off[0], target_ned_m[1] - off[1],
+                     target_ned_m[2] - c.grasp_distance_m - off[2])
+            return grasp, yaw, p.final_speed_mps
         return None
 
     def _tool_offset(self, attitude_q: Quat, dt_s: float) -> XYZ:
         """The tool point's NED offset from the vehicle at its current attitude, low-passed
         (time constant 1 s) so the attitude's jitter does not move the goal."""
-        off = tool_point_ned((0.0, 0.0, 0.0), attitude_q, self.c.tool_point_m)
+        off = tool_point_ned((0.0, 0.0, 0.0), attitude_q, self.plan.tool_point_m)
         if self._tool_off is None:
             self._tool_off = off
         else:
@@ -308,14 +293,14 @@ class Guidance:
         """Integral trim of the setpoint at the grasp pose: a multicopter's position loop
         holds a steady offset in wind (2-3 cm measured at 2.6 m/s), more than the grasp
         tolerance; the trim integrates the (estimated) position error once the carrot has
-        reached the grasp goal, clamped to ``trim_max_m``."""
-        if not holding or self.c.trim_gain_per_s <= 0:
+        reached the grasp goal, clamped to ``grasp_trim_max_m``."""
+        if not holding or self.p.grasp_trim_gain_per_s <= 0:
             return (0.0, 0.0, 0.0)
         assert self.carrot is not None
         if math.dist(self.carrot, goal) > 0.05:
             return self.trim
-        k = self.c.trim_gain_per_s * dt_s
-        lim = self.c.trim_max_m
+        k = self.p.grasp_trim_gain_per_s * dt_s
+        lim = self.p.grasp_trim_max_m
         t = [float(np.clip(t + k * (g - p), -lim, lim))
              for t, g, p in zip(self.trim, goal, position)]
         return (t[0], t[1], t[2])
@@ -339,7 +324,7 @@ class Guidance:
             if lead > max_lead:
                 self.carrot = step_towards(position_ned_m, self.carrot, max_lead)
         self.carrot_yaw_deg = yaw_step_deg(self.carrot_yaw_deg, yaw,
-                                           self.c.yaw_rate_degps * dt_s)
+                                           self.p.yaw_rate_degps * dt_s)
         self.trim = self._update_trim(pos, position_ned_m, dt_s, trim)
         carrot = self.carrot
         sp = setpoint_at((carrot[0] + self.trim[0], carrot[1] + self.trim[1],
@@ -347,5 +332,5 @@ class Guidance:
         at = False
         if kind == "STANDOFF" and target_ned_m is not None and self.approach_yaw_deg is not None:
             at = math.dist(position_ned_m, self.standoff_ned_m(target_ned_m)) \
-                < self.c.fine_standoff_tolerance_m
+                < self.p.standoff.tolerance_m
         return GoalStep(sp, pos, at)

@@ -11,8 +11,9 @@ returns an immutable :class:`Measurement`, the only thing that crosses back to t
    came from.
 3. **measure its pose** (:meth:`Perception.measure`): the state's estimator (``Estimator``: fine,
    or a down-weighted coarse FALLBACK when the fine one refuses), then the fit of the target's box
-   on the plane of its top (``PlaneFitter``, with the apparent-size range at close range) gives
-   the position; the first candidate that yields a measurement is the frame's.
+   on the plane of its top (``PlaneFitter``, with the apparent-size range at close range; none
+   when the ``estimators.fitter`` section is null) gives the position; the first candidate that
+   yields a measurement is the frame's.
 
 Filtering over time is :mod:`.tracking`'s.
 """
@@ -27,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.approach_config import PerceptionConfig
 from eaglemission.missions.target_state import (
     PlaneState,
     fit_std_m,
@@ -95,18 +96,6 @@ def colour_outline(det: Detection, frame: Frame, appearance: TargetAppearance | 
 
 
 @dataclass(frozen=True, slots=True)
-class PlaneMeasurement:
-    """The plane of the target's top measured by one view's apparent size (``plane_from_size``)."""
-
-    offset_m: float
-    std_m: float
-    frame_t_ns: int
-    range_m: float
-    cost: float
-    region: str
-
-
-@dataclass(frozen=True, slots=True)
 class Tools:
     """The plugins perception uses for one camera."""
 
@@ -136,8 +125,7 @@ class Request:
 @dataclass(frozen=True, slots=True)
 class Measurement:
     """What one frame gave. ``estimate`` is None with ``failure`` saying why (or nothing was
-    asked); ``fit_hint`` is a new hint from a complete close view; ``plane`` a plane
-    measurement from apparent size."""
+    asked); ``fit_hint`` is a new hint from a complete close view."""
 
     camera_id: str
     frame: Frame
@@ -153,7 +141,6 @@ class Measurement:
     """The position is the plane fit of the detection (not the estimator's own)."""
     failure: str | None
     fit_hint: FitHint | None
-    plane: PlaneMeasurement | None
     perception_ms: float
     anomaly: str | None = None
     """What was wrong with the detector's output (a non-finite map): its detections ignored."""
@@ -247,11 +234,10 @@ def inside_polygon(point_px: tuple[float, float], corners_px: NDArray[np.float64
     return cv2.pointPolygonTest(poly, (float(point_px[0]), float(point_px[1])), False) >= 0
 
 
-Measured = tuple[TargetEstimate | None, "Provenance | None", bool, str | None,
-                 "FitHint | None", "PlaneMeasurement | None"]
-"""What :meth:`Perception.measure` gives: (estimate, provenance, refined, failure, new fit hint,
-plane measurement)."""
-NOT_MEASURED: Measured = (None, None, False, None, None, None)
+Measured = tuple[TargetEstimate | None, "Provenance | None", bool, str | None, "FitHint | None"]
+"""What :meth:`Perception.measure` gives: (estimate, provenance, refined, failure, new fit
+hint)."""
+NOT_MEASURED: Measured = (None, None, False, None, None)
 
 
 def detect(detector: Detector, frame: Frame) -> tuple[DetectionResult, str | None]:
@@ -267,7 +253,7 @@ def detect(detector: Detector, frame: Frame) -> tuple[DetectionResult, str | Non
 
 
 def target_candidates(result: DetectionResult, req: Request,
-                      appearance: TargetAppearance | None, p: ApproachConfig,
+                      appearance: TargetAppearance | None, p: PerceptionConfig,
                       target: TargetConfig, has_fitter: bool
                       ) -> Iterator[tuple[Detection | None, bool]]:
     """Stage 2: the candidates for the target in this frame, best first, each with whether it
@@ -276,33 +262,32 @@ def target_candidates(result: DetectionResult, req: Request,
 
     - The detector's: the plausible detection nearest the predicted pixel (``gate_px``: a
       quarter of the image), plausible = of the size the camera's pose expects
-      (``size_ratio_range``) and, with ``colour_check`` and a known colour, of the target's
-      colour; cut by the image border only at close range with a plane fit that has the
-      heading of an earlier complete view.
-    - At close range with ``colour_track`` and a known colour, the region of the target's
-      colour near the predicted pixel: first when the detector has none, or when the fine
-      estimator is asked and the regions agree (:func:`regions_agree`: the colour region
-      follows the target's edges, a saliency threshold need not; not with
-      ``plane_from_size``); otherwise after the detector's, when that one cannot be measured.
+      (``size_ratio_range``) and, when the target's colour is known (``target.color_bgr``), of
+      the target's colour; cut by the image border only at close range with a plane fit that
+      has the heading of an earlier complete view.
+    - At close range, when the target's colour is known, the region of the target's colour near
+      the predicted pixel: first when the detector has none, or when the fine estimator is
+      asked and the regions agree (:func:`regions_agree`: the colour region follows the
+      target's edges, a saliency threshold need not); otherwise after the detector's, when that
+      one cannot be measured.
     """
     frame, model, state = req.frame, req.model, req.state
     colour = appearance if appearance is not None and appearance.has_colour else None
-    check_colour = colour is not None and p.colour_check
     gate_px = 0.25 * max(model.width_px, model.height_px)
 
     def plausible(d: Detection) -> bool:
         return (plausible_size(d, model, state, target, *p.size_ratio_range)
-                and (not check_colour or colour is None or colour.colour_matches(frame, d)))
+                and (colour is None or colour.colour_matches(frame, d)))
 
-    allow_cut = req.close_range and has_fitter and p.plane_fit and req.fit_hint is not None
+    allow_cut = req.close_range and has_fitter and req.fit_hint is not None
     det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
                            p.image_border_px, gate_px, plausible, allow_cut=allow_cut)
     near = req.predicted_px
-    if not (req.close_range and p.colour_track and colour is not None and near is not None
+    if not (req.close_range and colour is not None and near is not None
             and bool(np.isfinite(near).all())):
         yield det, False
         return
-    if det is None or (req.estimator == "fine" and not p.plane_from_size):
+    if det is None or req.estimator == "fine":
         region = colour.colour_region(frame, near)
         if region is not None and (det is None or regions_agree(region, det)):
             yield region, True
@@ -325,7 +310,7 @@ class Perception:
     """Runs one frame through the tools (:meth:`perceive`; pure apart from the detectors'
     temporal state, which only this camera's perception touches)."""
 
-    def __init__(self, params: ApproachConfig, target: TargetConfig, *,
+    def __init__(self, params: PerceptionConfig, target: TargetConfig, *,
                  thumbnails: bool = True) -> None:
         self.p = params
         self.target = target
@@ -346,10 +331,10 @@ class Perception:
             if measured[0] is not None:
                 break
         det, from_colour, out = chosen or (None, False, NOT_MEASURED)
-        est, prov, refined, failure, hint, plane = out
+        est, prov, refined, failure, hint = out
         return Measurement(frame.camera_id, frame, state, req.estimator, det,
                            len(result.detections), from_colour,
-                           est, prov, refined, failure, hint, plane,
+                           est, prov, refined, failure, hint,
                            (time.perf_counter() - t0) * 1e3, anomaly,
                            None if anomaly or not self.thumbnails
                            else saliency_thumbnail(result.saliency))
@@ -357,8 +342,8 @@ class Perception:
     def measure(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
                 ) -> Measured:
         """Stage 3, the pose of one candidate: (estimate, provenance, refined, failure, new fit
-        hint, plane measurement); the estimate is None when nothing was asked or the candidate
-        cannot be measured (``failure`` says why)."""
+        hint); the estimate is None when nothing was asked or the candidate cannot be measured
+        (``failure`` says why)."""
         if det is None or req.estimator is None or req.state is None:
             return NOT_MEASURED
         view = CameraView(req.model, req.state, req.frame.timestamp_ns)
@@ -376,10 +361,10 @@ class Perception:
                               source=f"{est.source} (fine failed: {failed})")
                 prov = Provenance.FALLBACK
         if not est:
-            return None, None, False, str(est), None, None
+            return None, None, False, str(est), None
         assert isinstance(est, TargetEstimate)
-        if not (self.p.plane_fit and tools.fitter is not None):
-            return est, prov, False, None, None, None
+        if tools.fitter is None:
+            return est, prov, False, None, None
         return self._refine(est, prov, det, view, req, tools.fitter, tracked, tools.appearance)
 
     def _refine(self, est: TargetEstimate, prov: Provenance, det: Detection, view: CameraView,
@@ -398,14 +383,14 @@ class Perception:
         hint = req.fit_hint
         if cut and hint is None:
             return (None, None, False, "plane fit: the detection is cut by the image border and "
-                    "no complete view gave the target's heading yet", None, None)
+                    "no complete view gave the target's heading yet", None)
         yaw_hint = hint.yaw_deg if (cut and hint is not None) else None
         region_hint = hint.region if (cut and hint is not None) else None
         if tracked:
             # a colour region is the whole silhouette: the top and the shaded sides share the
             # target's chromaticity (not the detector's region of the earlier views)
             region_hint = "box"
-        plane_ground = plane_down_m(0.0, req.plane, p.plane_offset)
+        plane_ground = plane_down_m(0.0, req.plane)
         whole = req.close_range and not cut
         outline = colour_outline(det, req.frame, appearance, tracked) if whole else None
         fit = fitter.fit(det if outline is None else replace(det, hull_px=outline), view,
@@ -424,29 +409,21 @@ class Perception:
         if fit is None or fit.cost > p.plane_fit_max_cost:
             if req.close_range:
                 why = "no fit" if fit is None else f"MBR mismatch {fit.cost:.2f}"
-                return (None, None, False, f"plane fit: {why} (> plane_fit_max_cost="
-                        f"{p.plane_fit_max_cost:g})", new_hint, None)
-            return est, prov, False, None, new_hint, None
+                return (None, None, False, f"plane fit: {why} (> perception.plane_fit_max_cost="
+                        f"{p.plane_fit_max_cost:g})", new_hint)
+            return est, prov, False, None, new_hint
         pos = np.asarray(fit.position_ned_m)
         d = pos - cam.t
         rng = float(np.linalg.norm(d))
         sin_dep = max(float(d[2]) / max(rng, 1e-9), 1e-3)
         std = fit_std_m(rng, sin_dep, p.plane_fit_angular_std_deg)
-        plane_meas = None
         size_ratio = fit.size_ratio
-        if p.size_range and req.close_range and size_ratio > 0:
+        if req.close_range and size_ratio > 0:
             # range from the apparent size (known target, 1/range) fused with the plane's
             # range (the measured plane, or the vehicle's altitude estimate): same ray. A cut
             # view's size is compared with the model clipped to the image like the detection.
-            plane_std = req.plane.std_m if p.plane_offset else p.altitude_std_m
-            if p.plane_offset and p.plane_from_size and not cut:
-                # the plane this view measures: the size-only range along the same ray
-                down = float(cam.t[2] + d[2] / size_ratio)
-                s_size = p.size_std_fraction * rng
-                plane_meas = PlaneMeasurement(down + float(self.target.height_m),
-                                              s_size * sin_dep, view.timestamp_ns, rng,
-                                              fit.cost, fit.region)
-            d = d * size_range_scale(size_ratio, plane_std, sin_dep, rng, p.size_std_fraction)
+            d = d * size_range_scale(size_ratio, req.plane.std_m, sin_dep, rng,
+                                     p.size_std_fraction)
             pos = cam.t + d
         source = (f"{est.source.split(' ')[0]}+fit:{fit.region} yaw {fit.yaw_deg:.0f} "
                   f"cost {fit.cost:.2f} size {size_ratio:.3f}" + (" cut" if cut else ""))
@@ -454,4 +431,4 @@ class Perception:
         refined = replace(est, position_ned_m=(float(pos[0]), float(pos[1]), float(pos[2])),
                           position_cam_m=(float(dc[0]), float(dc[1]), float(dc[2])),
                           std_m=std, source=source)
-        return refined, prov, True, None, new_hint, plane_meas
+        return refined, prov, True, None, new_hint

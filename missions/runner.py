@@ -2,8 +2,8 @@
 
 Tasks (all on the mission clock, real or virtual -- :mod:`eaglemission.clock`):
 
-* one **camera loop** per camera, paced at ``process_rate_hz``, grabbing only while the state's
-  policy needs the camera (cruise: wide only, as the paper does);
+* one **camera loop** per camera, paced at ``perception.process_rate_hz``, grabbing only while
+  the state's policy needs the camera (cruise: wide only, as the paper does);
 * **perception**: one frame at a time in a worker thread (:mod:`.perception`); the immutable
   :class:`~eaglemission.missions.perception.Measurement` it returns is applied on the loop
   thread to the target state (:mod:`.target_state`) and the camera choice (:mod:`.views`);
@@ -20,6 +20,7 @@ Values cross threads only as arguments and return values of the worker calls.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import math
 import time
@@ -92,7 +93,7 @@ class MissionRunner:
     detectors : one detector per camera (their temporal state is per camera)
     coarse, fine : estimators; fitter : the plane fitter; appearance : the target's appearance
     clock : the mission clock; mission_log : JSON-lines log
-    grasp_callback : awaited in GRASP_READY when ``mission.grasp_action == "callback"``
+    grasp_callback : awaited in GRASP_READY when ``grasp.action == "callback"``
     on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
     autopilot_guard : the assembly's (applied) autopilot-parameter guard; None: its own
@@ -118,11 +119,17 @@ class MissionRunner:
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
         self.record_all, self.on_processed = record_all, on_processed or (lambda _f, _t: None)
         self.machine = ApproachMachine(on_change=self._on_state_change)
-        self.perception = Perception(params, cfg.target, thumbnails=on_processed is not None)
-        self.track = TargetTracking(cfg, params, self.models, mission_log)
-        self.guidance = gd.Guidance(gd.GuidanceConfig.of(cfg, params))
-        self.actuator = Actuator(cfg, params, self.vehicle, clock, mission_log, self.guidance,
-                                 grasp_callback, guard=autopilot_guard)
+        self.perception = Perception(params.perception, cfg.target,
+                                     thumbnails=on_processed is not None)
+        self._limits = configured_limits(cfg, params)
+        self.track = TargetTracking(cfg, self.models, mission_log, tracking=params.tracking,
+                                    perception=params.perception, plane=params.plane,
+                                    grasp=params.grasp)
+        self.guidance = gd.Guidance(gd.Plan.of(cfg, params.grasp.distance_m), params.guidance)
+        self.actuator = Actuator(  # the grasp pose is held for the stable period before leaving
+            cfg, self.vehicle, clock, mission_log, self.guidance, grasp=params.grasp,
+            timeouts=params.timeouts, grasp_callback=grasp_callback, guard=autopilot_guard,
+            grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz)
         self.actuator.on_grasp_done = self._wake_machine_now
         self._interrupt: tuple[str, FinalAction] | None = None
         self._watchdog_hold = ""
@@ -130,7 +137,7 @@ class MissionRunner:
         self._wake_setpoint = asyncio.Event()
         self._wake_machine = asyncio.Event()
         self.pump = CameraPump(self.cameras, self.vehicle, clock, mission_log,
-                               rate_hz=params.process_rate_hz, needed=self.cameras_needed,
+                               rate_hz=params.perception.process_rate_hz, needed=self.cameras_needed,
                                recording=lambda: self.record_all and self.policy.airborne,
                                on_frame=on_frame)
         self._t0_ns = clock.now_ns()
@@ -166,7 +173,7 @@ class MissionRunner:
         tick; the actuator carries the action out through the envelope and waits for it."""
         if self._interrupt is None:
             self._interrupt = (reason, final_action(action))
-            self.actuator.settle_s = min(self.p.settle_timeout_s,
+            self.actuator.settle_s = min(self.p.timeouts.settle_s,
                                          self.cfg.safety.interrupt_timeout_s)
             self._wake_machine.set()
 
@@ -200,7 +207,7 @@ class MissionRunner:
 
     def _enter_count_loss(self, now: int) -> None:
         self.track.count_loss()
-        again = self.guidance.search_route_again(self.p.max_route_passes) \
+        again = self.guidance.search_route_again() \
             if self.track.just_rejected else None
         if again is not None:
             self.log.write("event", source="mission", text=again)
@@ -240,7 +247,7 @@ class MissionRunner:
         self.guidance.start_search(self.vehicle.state().position_ned_m, now)
 
     def _enter_final_done(self, now: int) -> None:
-        self.actuator.submit("final", self.p.on_done)
+        self.actuator.submit("final", self.p.actions.on_done)
 
     def _enter_final_failsafe(self, now: int) -> None:
         self.actuator.submit("final", self.machine.action)
@@ -303,7 +310,7 @@ class MissionRunner:
 
     # -- machine -------------------------------------------------------------------------------
     async def _machine_loop(self) -> None:
-        period = 1.0 / self.p.setpoint_rate_hz
+        period = 1.0 / self.p.guidance.setpoint_rate_hz
         while not self._stopping and not self.machine.final:
             try:
                 await asyncio.wait_for(self._wake_machine.wait(), timeout=period)
@@ -311,7 +318,7 @@ class MissionRunner:
                 pass
             self._wake_machine.clear()
             snap = self.snapshot()
-            abort = failsafe(self.machine.state, snap, self.cfg.safety, self.p)
+            abort = failsafe(self.machine.state, snap, self.cfg.safety, self.p.actions)
             self.machine.step(snap, abort)
 
     def snapshot(self) -> Snapshot:
@@ -324,8 +331,9 @@ class MissionRunner:
         timeout = (getattr(self.p.timeouts, pol.timeout_field) if pol.timeout_field
                    else math.inf)
         entered = self._entered_ns.get(pol.timeout_from or st, now)
-        camera_failed = pol.camera_watch and self.pump.failed(now, self.p.camera_failure_after_s)
-        warm = all(self._processed[c] >= max(1, self.p.narrow_warmup_frames)
+        p = self.p
+        camera_failed = pol.camera_watch and self.pump.failed(now, p.timeouts.camera_failure_s)
+        warm = all(self._processed[c] >= max(1, p.perception.narrow_warmup_frames)
                    for c in self.cameras)
         pilot = False
         act = self.actuator
@@ -340,35 +348,28 @@ class MissionRunner:
         dwell = 0.0 if self._at_standoff_since_ns is None else (
             now - self._at_standoff_since_ns) * 1e-9
         in_state_s = (now - self._entered_ns.get(st, now)) * 1e-9
-        return Snapshot(
+        return dataclasses.replace(
+            self._limits,
             t_s=self._t_s(), time_in_state_s=(now - entered) * 1e-9, state_timeout_s=timeout,
             armable=vs.armable, position_valid=vs.position_valid,
             cameras_streaming=self.pump.streaming(),
-            detector_warm=warm, telemetry_hz=self.telemetry.rate_hz(), min_telemetry_hz=self.p.min_telemetry_hz,
+            detector_warm=warm, telemetry_hz=self.telemetry.rate_hz(),
             in_air=vs.in_air, altitude_m=-vs.position_ned_m[2],
-            takeoff_altitude_m=self.m.cruise_altitude_m,
-            takeoff_tolerance_m=self.p.takeoff_tolerance_m,
             route_finished=self.guidance.route_finished(vs.position_ned_m),
-            confirmed_frames=len(self.track.confirm), confirm_frames=self.p.confirm_frames,
+            confirmed_frames=len(self.track.confirm),
             target_in_narrow_view=self.track.choice.target_in_narrow,
-            narrow_warm=self._processed.get(CAMERA_NARROW, 0) >= self.p.narrow_warmup_frames,
+            narrow_warm=self._processed.get(CAMERA_NARROW, 0) >= p.perception.narrow_warmup_frames,
             has_target=filt is not None, target_age_s=filt.age_s if filt else math.inf,
             target_expected_visible=self.track.choice.expected_visible,
-            target_lost_after_s=self.p.target_lost_after_s,
             at_standoff=self._at_standoff, standoff_dwell_s=dwell,
-            standoff_max_wait_s=self.p.standoff_max_wait_s,
             fine_estimates=self.track.fine_estimates,
-            fine_min_estimates=self.p.fine_min_estimates,
-            grasp_stable_frames=self.track.grasp_count,
-            grasp_required_frames=self.p.grasp_stable_frames, grasp_done=act.grasp_done,
+            grasp_stable_frames=self.track.grasp_count, grasp_done=act.grasp_done,
             search_exhausted=(pol.goal is Goal.SEARCH
-                              and in_state_s > self.p.timeouts.target_lost_s),
+                              and in_state_s > p.timeouts.target_lost_s),
             candidate_rejected=self.track.just_rejected, target_losses=self.track.last_losses,
-            on_target_lost=self.p.on_target_lost, link_lost_s=self.telemetry.link_lost_s(now),
-            link_loss_timeout_s=self.cfg.safety.link_loss_timeout_s,
+            link_lost_s=self.telemetry.link_lost_s(now),
             gps_ok=vs.gps_fix and (vs.position_valid or not vs.link_ok),
             battery_remaining=vs.battery_remaining,
-            low_battery_fraction=self.cfg.safety.low_battery_fraction,
             goal_inside_geofence=self._goal_ok, camera_failed=camera_failed,
             pilot_override=pilot, watchdog_hold=self._watchdog_hold,
             autopilot_failover=self.telemetry.failover, command_failed=act.command_failed,
@@ -385,7 +386,7 @@ class MissionRunner:
         return inside_geofence(self.cfg.safety.geofence, pos[0], pos[1])
 
     async def _setpoint_loop(self) -> None:
-        period = 1.0 / self.p.setpoint_rate_hz
+        period = 1.0 / self.p.guidance.setpoint_rate_hz
         last_ns = self.clock.now_ns()
         while not self._stopping:
             try:
@@ -419,7 +420,7 @@ class MissionRunner:
                         detail = getattr(exc, "detail", "") or str(exc)
                         self._watchdog_hold = detail.split(":")[0]
                         self.log.write("fault_detected", what="offboard_watchdog",
-                                       text=str(exc), response=f"{self.p.timeout_action}",
+                                       text=str(exc), response=f"{self.p.actions.on_timeout}",
                                        state=self.machine.state.value)
                         self._wake_machine.set()
                     continue
@@ -482,12 +483,28 @@ class MissionRunner:
         return result
 
 
+def configured_limits(cfg: MissionFile, p: ApproachConfig) -> Snapshot:
+    """A snapshot holding what the mission file fixes for the guards (thresholds, the loss
+    action); :meth:`MissionRunner.snapshot` fills in each tick's measurements."""
+    return Snapshot(min_telemetry_hz=p.timeouts.min_telemetry_hz,
+                    takeoff_altitude_m=cfg.mission.cruise_altitude_m,
+                    takeoff_tolerance_m=p.guidance.takeoff_tolerance_m,
+                    confirm_frames=p.tracking.confirm_frames,
+                    target_lost_after_s=p.tracking.lost_after_s,
+                    standoff_max_wait_s=p.guidance.standoff.max_wait_s,
+                    fine_min_estimates=p.guidance.standoff.min_fine_estimates,
+                    grasp_required_frames=p.grasp.stable_frames,
+                    on_target_lost=p.actions.on_target_lost,
+                    link_loss_timeout_s=cfg.safety.link_loss_timeout_s,
+                    low_battery_fraction=cfg.safety.low_battery_fraction)
+
+
 def mission_result(r: MissionRunner) -> MissionResult:
     """What the runner has flown so far, as the mission's result."""
     act = r.actuator
     return MissionResult(
         final_state=r.machine.state.value, reason=r.machine.reason,
-        action=r.machine.outcome_action(r.p.on_done),
+        action=r.machine.outcome_action(r.p.actions.on_done),
         states=r.states, t_start_s=0.0, t_end_s=r._t_s(),
         t_grasp_ready_s=r.t_grasp_ready_s,
         estimated_tool_errors_m=r.track.tool_errors,

@@ -162,9 +162,8 @@ class PlaneOffsetFilter:
     position found by intersecting a ray with the nominal plane inherits that error along the
     ray, which at the grasp pose (0.5 m range, 50 deg depression) moves the estimate by ~1.3x
     the altitude error down *and* along the approach. A downward rangefinder measures the plane
-    (estimated down + range x cos tilt, flat ground), and optionally complete close views
-    through the target's apparent size (range = plane range / size ratio); this scalar
-    random-walk Kalman filter fuses them, and the plane fits of every view use its value.
+    (estimated down + range x cos tilt, flat ground); this scalar random-walk Kalman filter
+    fuses its readings, and the plane fits of every view use its value.
     """
 
     def __init__(self, prior_std_m: float, process_noise_mps: float, gate_sigma: float = 4.0
@@ -221,10 +220,10 @@ class PlaneState:
     std_m: float
 
 
-def plane_down_m(target_height_m: float, plane: PlaneState, use_offset: bool) -> float:
+def plane_down_m(target_height_m: float, plane: PlaneState) -> float:
     """Down coordinate of the plane of the target's top face: flat ground at home's height
-    (``-height_m``), shifted by the measured offset when it is used."""
-    return -float(target_height_m) + (plane.offset_m if use_offset else 0.0)
+    (``-height_m``), shifted by the measured offset (0 while nothing measured it)."""
+    return -float(target_height_m) + plane.offset_m
 
 
 def vertical_reference(p: Sequence[float], camera_ned_m: Sequence[float] | None,

@@ -14,7 +14,12 @@ from dataclasses import dataclass
 
 from eaglemission.missions import guidance as gd
 from eaglemission.missions.approach import StatePolicy
-from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.approach_config import (
+    GraspConfig,
+    PerceptionConfig,
+    PlaneConfig,
+    TrackingConfig,
+)
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import FitHint, Measurement
 from eaglemission.missions.target_state import (
@@ -43,34 +48,26 @@ class Applied:
     switched_to: str | None
 
 
-ELONGATED = 1.25
-"""Length / width from which a target's heading is defined well enough to be checked."""
-
-
-def heading_consistency(headings_deg: list[float]) -> float:
-    """Mean resultant length of headings taken modulo 180 deg (a box is symmetric under a half
-    turn, so each is doubled first): 1 when all agree, near 0 when they spread evenly."""
-    if not headings_deg:
-        return 0.0
-    c = sum(math.cos(math.radians(2.0 * h)) for h in headings_deg)
-    s = sum(math.sin(math.radians(2.0 * h)) for h in headings_deg)
-    return math.hypot(c, s) / len(headings_deg)
-
-
 class TargetTracking:
-    """The mission's knowledge of the target (see the module docstring)."""
+    """The mission's knowledge of the target (see the module docstring). Its parameters:
+    ``tracking`` (confirmation, filter, loss, candidate rejection), ``perception`` (the camera
+    hand-over, the estimates' range), ``plane`` and ``grasp`` (the stability count)."""
 
-    def __init__(self, cfg: MissionFile, params: ApproachConfig,
-                 models: dict[str, CameraModel], log: MissionLog) -> None:
-        self.cfg, self.p, self.m = cfg, params, cfg.mission
+    def __init__(self, cfg: MissionFile, models: dict[str, CameraModel], log: MissionLog, *,
+                 tracking: TrackingConfig, perception: PerceptionConfig, plane: PlaneConfig,
+                 grasp: GraspConfig) -> None:
+        self.cfg = cfg
+        self.p, self.perception_p, self.plane_p, self.grasp_p = tracking, perception, plane, grasp
         self.models = models
         self.log = log
-        self.filter = TargetFilter(params.filter)
-        self.plane = PlaneOffsetFilter(params.altitude_std_m, params.plane_offset_drift_mps)
+        self.filter = TargetFilter(tracking.filter)
+        self.plane = PlaneOffsetFilter(plane.altitude_std_m, plane.drift_mps)
         self.choice = CameraChoice(models[CAMERA_WIDE], models[CAMERA_NARROW],
                                    cfg.target.length_m, cfg.target.width_m, ChoiceParams(
-                                       params.warm_margin_px, params.narrow_max_fill,
-                                       params.narrow_miss_switch_s, params.image_border_px))
+                                       perception.narrow_warm_margin_px,
+                                       perception.narrow_max_fill,
+                                       perception.narrow_miss_switch_s,
+                                       perception.image_border_px))
         self.confirm: list[XYZ] = []
         self.coarse_std_m = 1.0
         self.fine_estimates = 0
@@ -85,7 +82,7 @@ class TargetTracking:
         self.last_place: tuple[float, float] | None = None
         """Where the latest loss was counted (None: the target was never tracked)."""
         self.misshapen: dict[tuple[float, float], str] = {}
-        """Places of candidates whose fitted heading disagrees across views (the reason)."""
+        """Places of candidates rejected by the shape check (the reason)."""
         self.headings_deg: list[float] = []
         """Fitted headings of the tracked candidate's complete close-range views."""
         self.silhouettes: list[float] = []
@@ -110,8 +107,8 @@ class TargetTracking:
 
     def count_loss(self) -> tuple[float, float] | None:
         """The target was lost: count it at the place it was last tracked (losses within
-        ``search_radius_m + confirm_radius_m`` count as one place, as reacquisition does), and
-        log it. The ``max_target_losses``-th loss at a place rejects it (``just_rejected``).
+        ``reacquire_radius_m + confirm_radius_m`` count as one place, as reacquisition does),
+        and log it. The ``max_losses``-th loss at a place rejects it (``just_rejected``).
         Returns the place, None when the target was never tracked."""
         self.headings_deg = []
         self.silhouettes = []
@@ -134,19 +131,19 @@ class TargetTracking:
         return 0 if self.last_place is None else self.losses[self.last_place]
 
     def _place_of(self, position_ned_m: XYZ) -> tuple[float, float]:
-        """The counted place within ``search_radius_m + confirm_radius_m`` (as reacquisition
+        """The counted place within ``reacquire_radius_m + confirm_radius_m`` (as reacquisition
         searches), else the position itself."""
         here = (position_ned_m[0], position_ned_m[1])
-        near = self.p.search_radius_m + self.p.confirm_radius_m
+        near = self.p.reacquire_radius_m + self.p.confirm_radius_m
         return next((q for q in self.losses if math.dist(q, here) <= near), here)
 
     def _rejects(self, place: tuple[float, float]) -> bool:
-        return self.losses[place] >= self.p.max_target_losses or place in self.misshapen
+        return self.losses[place] >= self.p.max_losses or place in self.misshapen
 
     @property
     def just_rejected(self) -> bool:
-        """The latest loss was at a rejected place: the ``max_target_losses``-th there, or at
-        a candidate of the wrong shape (:meth:`check_shape`)."""
+        """The latest loss was at a rejected place: the ``max_losses``-th there, or at a
+        candidate of the wrong shape (:meth:`check_shape`)."""
         return self.last_place is not None and self._rejects(self.last_place)
 
     @property
@@ -169,39 +166,28 @@ class TargetTracking:
         """One complete close-range view of the candidate tracked in the fine approach: its
         fitted heading and how well the target's shape explains its region's outline
         (``silhouette_iou``). The candidate is rejected at its place, and its track dropped,
-        when the median silhouette IoU of its views falls below ``silhouette_min_iou`` once
-        ``silhouette_min_views`` are in, or (an elongated target, opt-in) its fitted headings
-        disagree (:func:`heading_consistency` below ``heading_min_consistency`` after
-        ``heading_min_views``): a box of the target's colour and top area but another shape.
-        The loss that follows applies ``on_target_lost`` at once. Each view is logged
-        (``heading``), the checks on or off."""
-        t, p = self.cfg.target, self.p
+        when the median silhouette IoU of its views falls below ``shape.min_iou`` once
+        ``shape.min_views`` are in: a box of the target's colour and top area but another
+        shape. The loss that follows applies ``on_target_lost`` at once. Each view is logged
+        (``heading``), the check on or off."""
+        shape = self.p.shape
         self.headings_deg.append(yaw_deg)
         if silhouette_iou is not None:
             self.silhouettes.append(silhouette_iou)
         n = len(self.headings_deg)
-        elongated = t.length_m >= ELONGATED * t.width_m
-        r = heading_consistency(self.headings_deg) \
-            if elongated and n >= p.heading_min_views else None
         iou = statistics.median(self.silhouettes) \
-            if len(self.silhouettes) >= p.silhouette_min_views else None
+            if len(self.silhouettes) >= shape.min_views else None
         self.log.write("heading", camera=camera, yaw_deg=round(yaw_deg, 1), views=n,
-                       consistency=None if r is None else round(r, 4),
                        silhouette_iou=None if silhouette_iou is None
                        else round(silhouette_iou, 4),
                        silhouette_yaw_deg=None if silhouette_yaw_deg is None
                        else round(silhouette_yaw_deg, 1),
                        median_iou=None if iou is None else round(iou, 4))
-        if iou is not None and p.silhouette_min_iou is not None and iou < p.silhouette_min_iou:
-            why = (f"its outline does not fit the target's shape (median silhouette IoU "
-                   f"{iou:.2f} over {len(self.silhouettes)} views < silhouette_min_iou="
-                   f"{p.silhouette_min_iou:g})")
-        elif r is not None and r < p.heading_min_consistency:
-            why = (f"fitted heading inconsistent over {n} views (consistency {r:.2f} < "
-                   f"heading_min_consistency={p.heading_min_consistency:g}): not the "
-                   f"target's shape")
-        else:
+        if iou is None or shape.min_iou is None or iou >= shape.min_iou:
             return
+        why = (f"its outline does not fit the target's shape (median silhouette IoU "
+               f"{iou:.2f} over {len(self.silhouettes)} views < tracking.shape.min_iou="
+               f"{shape.min_iou:g})")
         place = self._place_of(position_ned_m)
         self.losses.setdefault(place, 0)
         self.misshapen[place] = why
@@ -226,16 +212,9 @@ class TargetTracking:
         """One processed frame: log it and feed its estimate to the confirmation, the filter,
         the camera choice and the grasp check."""
         cam_id, frame, state = meas.camera_id, meas.frame, meas.state
-        p = self.p
+        p, pp = self.p, self.perception_p
         if meas.fit_hint is not None:
             self.fit_hint = meas.fit_hint
-        pm = meas.plane
-        if pm is not None and meas.estimate is not None and pm.cost <= p.plane_max_cost:
-            ok = self.plane.update(pm.offset_m, pm.std_m, pm.frame_t_ns)
-            self.log.write("plane", camera=cam_id, measured_m=pm.offset_m, std_m=pm.std_m,
-                           accepted=ok, frame_t_ns=pm.frame_t_ns, range_m=pm.range_m,
-                           cost=pm.cost, region=pm.region, offset_m=self.plane.offset_m,
-                           offset_std_m=self.plane.std_m())
         det = meas.detection
         self.log.write("detection", camera=cam_id, seq=frame.seq, frame_t_ns=frame.timestamp_ns,
                        n=meas.raw_detections, used=det is not None,
@@ -249,7 +228,7 @@ class TargetTracking:
         est = meas.estimate
         if est is None and meas.failure is not None:
             self.log.write("estimate", camera=cam_id, ok=False, reason=meas.failure)
-        if est is not None and math.hypot(*est.position_cam_m) < p.min_estimate_range_m:
+        if est is not None and math.hypot(*est.position_cam_m) < pp.min_estimate_range_m:
             self.log.write("estimate", camera=cam_id, ok=False,
                            reason=f"closer than min_estimate_range_m: {est.source}")
             est = None
@@ -261,15 +240,15 @@ class TargetTracking:
         model = self.models[cam_id]
         cam_t = None if state is None else tuple(
             camera_pose_ned(model, state.position_ned_m, state.attitude_q).t)
-        plane_m = plane_down_m(self.cfg.target.height_m, self.plane_state(), p.plane_offset)
+        plane_m = plane_down_m(self.cfg.target.height_m, self.plane_state())
         fresh = False
         if cam_id == CAMERA_WIDE and pol.confirms:
             pos = None if est is None else vertical_reference(
-                est.position_ned_m, cam_t, plane_m, p.vertical_reference,
-                full_3d_range_m=p.full_3d_range_m)
+                est.position_ned_m, cam_t, plane_m, pp.vertical_reference,
+                full_3d_range_m=pp.full_3d_range_m)
             near_last = (pos is None or not pol.reacquires or self.last_target is None
                          or math.dist(pos[:2], self.last_target[:2])
-                         <= p.search_radius_m + p.confirm_radius_m)
+                         <= p.reacquire_radius_m + p.confirm_radius_m)
             if pos is not None and self.is_rejected(pos):
                 pass  # a rejected candidate neither confirms nor breaks a confirmation
             else:
@@ -278,10 +257,10 @@ class TargetTracking:
             if est is not None:
                 self.coarse_std_m = max(est.std_m, 0.2)
         elif est is not None and pol.tracks:
-            pos = vertical_reference(est.position_ned_m, cam_t, plane_m, p.vertical_reference,
-                                     full_3d=meas.full_3d, full_3d_range_m=p.full_3d_range_m)
+            pos = vertical_reference(est.position_ned_m, cam_t, plane_m, pp.vertical_reference,
+                                     full_3d=meas.full_3d, full_3d_range_m=pp.full_3d_range_m)
             if self.is_rejected(pos):
-                accepted, why = False, "at a rejected candidate (mission.params.max_target_losses)"
+                accepted, why = False, "at a rejected candidate (mission.params.tracking.max_losses)"
             else:
                 accepted = self.filter.update(pos, est.std_m, frame.timestamp_ns,
                                               allow_reset=pol.filter_may_reset)
@@ -320,11 +299,12 @@ class TargetTracking:
         tool = gd.tool_point_ned(vs.position_ned_m, vs.attitude_q, self.cfg.tool_point_m)
         h_err, dist = gd.tool_errors(tool, target_ned_m)
         speed = math.sqrt(sum(v * v for v in vs.velocity_ned_mps))
+        g = self.grasp_p
         self.grasp_window, self.grasp_count = grasp_progress(
-            self.grasp_window, h_err, dist, slow=counting and speed <= self.p.grasp_max_speed_mps,
-            grasp_distance_m=self.p.grasp_distance_m, tolerance_m=self.p.grasp_tolerance_m,
-            hold_factor=self.p.grasp_hold_factor, accept_fraction=self.p.grasp_accept_fraction,
-            required=self.p.grasp_stable_frames)
+            self.grasp_window, h_err, dist, slow=counting and speed <= g.max_speed_mps,
+            grasp_distance_m=g.distance_m, tolerance_m=g.tolerance_m,
+            hold_factor=g.hold_factor, accept_fraction=g.accept_fraction,
+            required=g.stable_frames)
         self.tool_errors = (h_err, dist)
 
     def use_rangefinder(self, vs: VehicleState, pol: StatePolicy) -> None:
@@ -332,22 +312,21 @@ class TargetTracking:
         frame* (estimated down + range x cos tilt): the plane offset the visual fits need, free
         of the altitude estimate's drift (flat ground between the vehicle and the target)."""
         d = vs.distance_to_ground_m
-        if (d is None or not self.p.plane_offset or self.p.rangefinder == "off" or not vs.in_air
-                or not pol.rangefinder):
+        if d is None or self.plane_p.rangefinder == "off" or not vs.in_air or not pol.rangefinder:
             return
         cos_tilt = down_axis_cos_tilt(vs.attitude_q)
         if (not math.isfinite(d) or not math.isfinite(vs.position_ned_m[2])
                 or not cos_tilt >= 0.5 or d == self._last_range_m):  # NaN attitude: not >= 0.5
             return  # a repeated value is the same sample (telemetry outpaces the sensor)
         self._last_range_m = d
-        self.plane.update(vs.position_ned_m[2] + d * cos_tilt, self.p.rangefinder_std_m,
+        self.plane.update(vs.position_ned_m[2] + d * cos_tilt, self.plane_p.rangefinder_std_m,
                           vs.timestamp_ns)
 
     def rangefinder_report(self, vs: VehicleState) -> tuple[str, bool]:
         """(what the log says about the rangefinder once airborne, whether it is a warning)."""
-        if self.p.rangefinder == "off" or not self.p.plane_offset:
-            return ("rangefinder not used (mission.params): the grasp height follows the "
-                    "vehicle's altitude estimate", False)
+        if self.plane_p.rangefinder == "off":
+            return ("rangefinder not used (mission.params.plane.rangefinder: off): the grasp "
+                    "height follows the vehicle's altitude estimate", False)
         if vs.distance_to_ground_m is None:
             return ("no downward rangefinder reading in the telemetry: the grasp height "
                     "follows the vehicle's altitude estimate (docs/mission.md)", True)

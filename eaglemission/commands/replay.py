@@ -26,7 +26,7 @@ class ReplayResult:
     comparison: Any
     """:class:`~eaglemission.recording.compare.Comparison`."""
     flight: Any
-    """:class:`~eaglemission.flight.assembly.FlightResult` of the replay."""
+    """:class:`~eaglemission.flight.run.FlightResult` of the replay."""
     clock: str
     """How the recording was flown: ``virtual`` or ``wall``."""
     images: str

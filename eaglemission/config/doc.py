@@ -74,8 +74,8 @@ def _walk(lines: list[str], model: type[BaseModel], path: str, *, level: str = "
     if not model.model_fields:
         lines += ["(no parameters)", ""]
         return
-    lines.append("| key | type | default | constraint |")
-    lines.append("|---|---|---|---|")
+    lines.append("| key | type | default | constraint | meaning |")
+    lines.append("|---|---|---|---|---|")
     nested = []
     for name, info in model.model_fields.items():
         if info.default is not PydanticUndefined:
@@ -85,7 +85,9 @@ def _walk(lines: list[str], model: type[BaseModel], path: str, *, level: str = "
                 else repr(info.get_default(call_default_factory=True, validated_data={}))
         else:
             default = "**required**"
-        lines.append(f"| `{name}` | {_type_name(info.annotation)} | {default} | {_constraints(info)} |")
+        meaning = " ".join((info.description or "").split()).replace("|", "\\|")
+        lines.append(f"| `{name}` | {_type_name(info.annotation)} | {default} | "
+                     f"{_constraints(info)} | {meaning} |")
         sub = _model_of(info.annotation)
         if sub is not None and sub is not C.PluginSection:
             nested.append((sub, f"{path}.{name}" if path else name))

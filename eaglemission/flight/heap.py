@@ -5,8 +5,9 @@ process: a full (generation 2) collection stops all of them while it walks every
 and that walk grows with the heap. Measured in the test suite's process on this 2-core machine
 (`gc.callbacks`): full collections of 0.15-0.46 s at 0.4-0.8 million tracked objects, up to
 1.05 s with both cores busy, and 0.73-1.0 s at 1.39 million late in the suite on a quiet
-machine, where the offboard watchdog commands HOLD after 0.5 s without a fresh setpoint. CI on
-2b3fe7d saw a real-time flight in that process end before FINE_APPROACH with MAVSDK "dropping subscription callbacks" (its reason was not logged).
+machine, where the offboard watchdog commands HOLD after 0.5 s without a fresh setpoint; a
+real-time flight in that process has ended before FINE_APPROACH with MAVSDK "dropping
+subscription callbacks".
 
 :func:`frozen_heap` moves every object alive at the flight's start to the permanent generation
 (:func:`gc.freeze`), so the flight's collections walk only what the flight allocated; the heap

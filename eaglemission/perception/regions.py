@@ -132,7 +132,7 @@ def prior_accepts(area_px: float, long_px: float, short_px: float,
     return True
 
 
-# kept for callers of the first version
+# another name for prior_accepts
 _prior_ok = prior_accepts
 
 

@@ -52,7 +52,7 @@ THROTTLED = frozenset({"telemetry", "setpoint"})
 """Log kinds sent at most ``telemetry_hz`` (the others are rare: every one is sent)."""
 CHECK_NAME = "live: Foxglove WebSocket"
 LOG_KINDS = ("start", "config", "autopilot_params", "failsafe_params", "param_set", "state",
-             "telemetry", "setpoint", "detection", "estimate", "filter", "plane", "command",
+             "telemetry", "setpoint", "detection", "estimate", "filter", "command",
              "event", "end", "evaluation")
 """The mission log's kinds (missions/log.py): their channels are advertised at the start; a
 kind not listed gets its channel with its first record."""

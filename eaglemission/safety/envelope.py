@@ -333,7 +333,8 @@ class SafeVehicle:
     def ground_offset_m(self, s: VehicleState | None = None) -> float:
         """What to add to an estimated altitude (relative to home) to get the height above the
         ground under the vehicle: ``range x cos tilt - estimated altitude`` with
-        ``altitude_reference: rangefinder`` and a trusted reading, else 0 (docs/safety.md)."""
+        ``altitude_reference: rangefinder`` and a trusted reading, else 0 (docs/vehicles.md,
+        "Altitude band on the rangefinder")."""
         if self.safety.altitude_reference != "rangefinder":
             return 0.0
         if s is None:

@@ -1,5 +1,5 @@
 """Checks of the telemetry's time base: late, stale, duplicated, out-of-order samples and jumps
-of the autopilot's clock (issue 16).
+of the autopilot's clock.
 
 A sample carries two times: ``timestamp_ns``, stamped by the host on receipt, and
 ``autopilot_time_ns``, the autopilot's own stamp (MAVLink ``time_boot_ms`` / ``time_usec``;

@@ -1,6 +1,6 @@
 """Simulated flights through the assembly.
 
-:func:`run_simulation` flies a mission file through :func:`eaglemission.flight.assembly.fly_sync`,
+:func:`run_simulation` flies a mission file through :func:`eaglemission.flight.run.fly_sync`,
 exactly as ``eaglemission run`` does, and returns the mission's
 :class:`~eaglemission.missions.mission.ApproachOutcome`. A test harness reaches the assembled
 parts through ``prepare`` (called once they are built, before the flight) and runs alongside

@@ -34,7 +34,7 @@ class Tolerances:
     speed_mps: float = 0.3
     altitude_m: float = 0.5
     geofence_m: float = 0.5
-    grasp_horizontal_m: float = 0.05  # issue 7: final tool-point error <= 0.05 m horizontally
+    grasp_horizontal_m: float = 0.05  # the grasp's requirement: final tool-point error <= 0.05 m horizontally
 
 
 @dataclass(frozen=True)
@@ -175,7 +175,7 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
     judged_on : ``"truth"``, or ``"estimate"`` when ``trajectory`` is the autopilot's report
     """
     traj = list(trajectory)
-    m = ApproachConfig.of(cfg)
+    grasp = ApproachConfig.of(cfg).grasp
     h_err = dist = None
     t_gr = result.t_grasp_ready_s
     if t_gr is not None and traj and target_position_ned_m is not None:
@@ -186,7 +186,7 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
         # no known target (a real flight, a replay): the mission's own estimate is all there is
         h_err, dist = result.estimated_tool_errors_m
     within = (h_err is not None and dist is not None and h_err <= tolerances.grasp_horizontal_m
-              and abs(dist - m.grasp_distance_m) <= m.grasp_tolerance_m)
+              and abs(dist - grasp.distance_m) <= grasp.tolerance_m)
     violations = envelope_violations(traj, cfg, t0_ns, tolerances) if traj else []
     landed = bool(traj) and not getattr(traj[-1], "in_air", False)
     ended_safe = True

@@ -1,5 +1,5 @@
 """A loopback UDP relay between an autopilot and MAVSDK that carries injected link faults in
-real time (issue 16): the ``faults:`` section's link kinds on a real MAVLink path.
+real time: the ``faults:`` section's link kinds on a real MAVLink path.
 
 The relay takes the address the autopilot sends to (the ``udpin://HOST:PORT`` MAVSDK would have
 bound: PX4 SITL's 14540, the emulator's port) and passes every datagram to MAVSDK on a free

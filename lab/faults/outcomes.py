@@ -60,10 +60,10 @@ OUTCOMES: dict[str, Outcome] = {
                              (2.0, 4.0)),
     "occlusion": Outcome(_CAM, COMPLETE, (), ("FINE_APPROACH",), (0.2, 1.0),
                          (0.5, 1.5)),
-    "camera_device_loss": Outcome(_CAM, "mission.params.camera_failure_action",
+    "camera_device_loss": Outcome(_CAM, "mission.params.actions.on_camera_failure",
                                   ("grab_failed", "camera failure"), _FLYING, (0.5, 2.0),
                                   (1.0, 1.0)),
-    "camera_clock_jump": Outcome(_CAM, "mission.params.camera_failure_action",
+    "camera_clock_jump": Outcome(_CAM, "mission.params.actions.on_camera_failure",
                                  ("frame_stamp", "camera failure"), _FLYING, (0.5, 2.0),
                                  (1.0, 1.0), (5.0, 60.0)),
     "detector_exception": Outcome(_DET, COMPLETE, ("perception_failed",), _APPROACH,
@@ -115,10 +115,12 @@ def expected_action(kind: str, cfg: Any) -> str:
     for part in rest:
         obj = obj.get(part) if isinstance(obj, dict) else getattr(obj, part, None)
     if obj is None and exp.startswith("mission.params."):
-        from eaglemission import registry
+        from eaglemission import registry  # the mission's default for a key the file leaves out
 
         mcls = registry.get("missions", cfg.mission.type)
-        obj = getattr(mcls.Config.model_validate(dict(cfg.mission.params)), rest[-1])
+        obj = mcls.Config.model_validate(dict(cfg.mission.params))
+        for part in rest[1:]:
+            obj = getattr(obj, part)
     return str(obj)
 
 

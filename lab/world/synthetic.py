@@ -167,7 +167,8 @@ class SyntheticWorld:
             "camera_time_offset_s": float(rng.uniform(0.0, 0.040)),
         })
         # The imaging effects come from an RNG of the drawn world seed, not from ``rng``: the
-        # draws above stay those of every campaign flown before the effects existed.
+        # draws above do not depend on them (a seed gives the same worlds with
+        # ``--no-imaging-effects``).
         varied = varied.model_copy(update=imaging_draws(varied.seed))
         return varied.model_dump()
 

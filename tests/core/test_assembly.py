@@ -1,4 +1,4 @@
-"""The assembly: every part comes from the registry by its configured type (issue 11).
+"""The assembly: every part comes from the registry by its configured type.
 
 Third-party plugins are installed as a real distribution on ``sys.path`` (dist-info with entry
 points, as in test_registry.py), so the registry finds them exactly as it finds ours."""

@@ -127,12 +127,15 @@ def test_malformed_variant_of_shipped_config(path: str, value: Any, expected: st
 MISSION_PARAM_MUTATIONS = [
     ("world.params.mount_error_deg", 45, "world.params.mount_error_deg: must be <= 10, got 45"),
     ("world.params.seed", "seven", "world.params.seed: must be an integer, got 'seven'"),
-    ("mission.params.grasp_distance_m", 5, "mission.params.grasp_distance_m: must be <= 2, got 5"),
-    ("mission.params.confirm_frames", 2.5, "mission.params.confirm_frames: must be an integer, got 2.5"),
+    ("mission.params.grasp.distance_m", 5, "mission.params.grasp.distance_m: must be <= 2, got 5"),
+    ("mission.params.tracking.confirm_frames", 2.5,
+     "mission.params.tracking.confirm_frames: must be an integer, got 2.5"),
     ("mission.params.timeouts.fine_approach_s", -1,
      "mission.params.timeouts.fine_approach_s: must be > 0, got -1"),
-    ("mission.params.on_done", "crash",
-     "mission.params.on_done: must be one of 'land', 'return' or 'hold'"),
+    ("mission.params.actions.on_done", "crash",
+     "mission.params.actions.on_done: must be one of 'land', 'return' or 'hold'"),
+    ("mission.params.confirm_frames", 3,
+     "mission.params.confirm_frames: unknown key"),
 ]
 
 

@@ -132,8 +132,8 @@ def test_project_normalize_round_trip(dist):
 
 
 def test_normalize_converges_at_wide_lens_corners():
-    """Regression: OpenCV's default 5 undistortion iterations left 1.25 px at the corners of the
-    2.8 mm camera with k1 = -0.3; normalize() iterates to convergence."""
+    """OpenCV's default 5 undistortion iterations leave 1.25 px at the corners of the 2.8 mm
+    camera with k1 = -0.3; normalize() iterates to convergence."""
     model = CameraModel.from_lens("wide", focal_length_mm=2.8,
                                   distortion=(-0.30, 0.09, 0.001, -0.0005, -0.012))
     rs = np.random.RandomState(16)

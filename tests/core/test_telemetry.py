@@ -35,7 +35,7 @@ def _yaw(state: VehicleState) -> float:
 
 
 def test_30ms_skew_at_60_deg_per_s():
-    """The issue's example: yawing at 60 deg/s, a frame stamped 30 ms before the newest sample
+    """Yawing at 60 deg/s, a frame stamped 30 ms before the newest sample
     must get the attitude of its own time (1.8 deg off otherwise, ~0.16 m at 5 m)."""
     hist = TelemetryHistory()
     for k in range(11):  # 100 Hz telemetry, 60 deg/s yaw

@@ -69,8 +69,8 @@ def test_the_age_grows_with_the_link_s_latency() -> None:
 @pytest.mark.parametrize("clock_rate", [0.992, 0.98, 1.001])
 def test_a_drifting_autopilot_clock_never_reads_as_stale(clock_rate: float) -> None:
     """PX4 SITL's clock runs 0.7-0.9 % slow (recorded fact 22), 2 % on a loaded machine (a
-    local SITL, issue 13): a fixed anchor read that as telemetry aging 20 ms a second, a stale
-    link after 25 s of flight."""
+    local SITL): a fixed anchor would read that as telemetry aging 20 ms a second, a stale link
+    after 25 s of flight."""
     c = TelemetryTimeCheck()
     worst = 0.0
     for k in range(50 * 180):  # 3 minutes at 50 Hz, 1-3 ms of latency

@@ -51,7 +51,7 @@ def test_presets_resolve_and_literal_keeps_t120():
     assert aerial.fusion == "max" and aerial.block_weight > 0 and aerial.ego_motion == "homography"
     for name in ("literal", "default", "field"):
         assert resolve(DTDMIConfig(preset=name)).ego_motion == "none"
-    for name in ("literal", "field"):  # as before issue 14
+    for name in ("literal", "field"):  # Eq. (15) without the block and colour cues
         assert resolve(DTDMIConfig(preset=name)).block_weight == 0.0
         assert resolve(DTDMIConfig(preset=name)).colour_weight == 1.0
     default = resolve(DTDMIConfig())

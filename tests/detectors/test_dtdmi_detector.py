@@ -46,7 +46,7 @@ def test_static_scene_without_camera_motion_gives_near_zero_dynamic_map():
     assert max(peaks) <= 1e-6 * moving_peak
 
 
-# The default preset before issue 14: S = S_s^0.5 x S_M (Eq. (15) as a product, no block cue);
+# Eq. (15) as a product, S = S_s^0.5 x S_M, without the block cue;
 # a static scene or the first frame after a reset gives exactly 0 there.
 PRODUCT = {"block_weight": 0.0, "colour_weight": 1.0, "blur_sigma_frac": 0.02,
            "centre_sigma_frac": 0.25, "colour_propagation": 0.0}

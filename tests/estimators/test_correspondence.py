@@ -189,8 +189,8 @@ def test_target_config_required():
 
 def test_no_region_fit_keeps_the_pnp_choice(mission, monkeypatch):
     """When no region model can be fitted (every LM start fails), the MBR-corrected estimator
-    keeps the PnP hypothesis (solve_corners used to return the whole hypothesis list, which
-    made estimate() raise AttributeError)."""
+    keeps the PnP hypothesis (solve_corners returns one hypothesis: the whole hypothesis list
+    would make estimate() raise AttributeError)."""
     narrow = mission.cameras.narrow.to_model("narrow")
     target = mission.target
     pos, q = approach_pose((0, 0, -target.height_m), 4.0, 30.0, 0.0)

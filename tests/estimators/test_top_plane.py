@@ -154,8 +154,9 @@ def _outline(model, cam, top, yaw_deg, length_m, width_m, height_m, region="box"
 
 @pytest.mark.parametrize("camera", ["wide", "narrow"])
 def test_the_silhouette_tells_a_square_box_from_the_elongated_target(sitl_config, camera) -> None:
-    """gh run 521: a 0.32 m square box, 0.20 m high, of the target's colour and top area; the
-    MBR fit explains it, its outline does not (perfect segmentations, fine-approach views)."""
+    """A 0.32 m square box, 0.20 m high, of the target's colour and top area (the distractor of
+    tests/missions/test_candidate_rejection.py): the MBR fit explains it, its outline does not
+    (perfect segmentations, fine-approach views)."""
     model = getattr(sitl_config.cameras, camera).to_model(camera)
     t = sitl_config.target
     rng = np.random.RandomState(521)

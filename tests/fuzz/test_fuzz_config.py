@@ -72,8 +72,8 @@ def test_degenerate_files_exit_2_with_path_problem(tmp_path: Path, text: str) ->
 
 
 def test_invalid_world_params_are_reported_once_by_the_world_not_by_the_camera() -> None:
-    """Found by fuzzing: ``world.params.seed: {seed: 1}`` made the synthetic camera's check
-    fail with pydantic's multi-line dump ("the plugin's check failed: ValidationError ...")."""
+    """A fuzzing case: ``world.params.seed: {seed: 1}`` is one path problem from the world, not
+    the synthetic camera's check failing with pydantic's multi-line dump."""
     doc = copy.deepcopy(DOCS[CONFIG_FILES.index(CONFIG_FILES[0].with_name("sitl_synthetic.yaml"))])
     doc["world"]["params"]["seed"] = {"seed": 1}
     cfg = resolve_relative_paths(validate_mapping(doc, check_plugins=False), None)
@@ -82,7 +82,7 @@ def test_invalid_world_params_are_reported_once_by_the_world_not_by_the_camera()
 
 
 @pytest.mark.parametrize("key", ["\n", "", " a", "a\tb"])
-def test_found_a_key_that_cannot_print_as_a_word_is_quoted_in_its_path(key: str) -> None:
-    """Found by the hypothesis run: an unknown key ``"\\n"`` made the problem line
+def test_a_key_that_cannot_print_as_a_word_is_quoted_in_its_path(key: str) -> None:
+    """A hypothesis case: an unknown key ``"\\n"`` must not make the problem line
     ``"\\n: unknown key"``, two lines with an empty path."""
     assert check_document({key: None}) == "refused"

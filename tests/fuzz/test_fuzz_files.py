@@ -51,8 +51,8 @@ def _huge_length(data: bytes) -> bytes:
                          ids=["huge_record_length", "inside_magic", "inside_header", "half"])
 def test_recordings_cut_or_lying_about_lengths_read_cleanly(samples: list[bytes], work: Path,
                                                              cut: object) -> None:
-    """Found by fuzzing: a cut inside a field raised struct.error, a corrupt length
-    MemoryError / OverflowError, out of ``eaglemission log``."""
+    """Fuzzing cases: a cut inside a field (struct.error) or a corrupt length (MemoryError /
+    OverflowError) is a clean refusal of ``eaglemission log``, not an exception out of it."""
     for s in samples:
         assert check_mcap(work / "c.mcap", cut(s)) == "read/read"  # type: ignore[operator]
 
@@ -68,8 +68,8 @@ CASES = Path(__file__).parent / "cases"
 
 
 def test_atheris_case_a_message_of_an_undefined_channel(work: Path) -> None:
-    """Found by benchmarks/atheris_fuzz.py mcap: a chunk (no CRC) with a message whose channel
-    was never defined made ``log --recover`` raise KeyError; it is left out and counted."""
+    """A case of benchmarks/atheris_fuzz.py mcap: a chunk (no CRC) with a message whose channel
+    was never defined is left out and counted by ``log --recover`` (not a KeyError)."""
     data = (CASES / "atheris_recover_unknown_channel.mcap").read_bytes()
     assert check_mcap(work / "x.mcap", data) in ("read/read", "refused/read", "read/refused",
                                                  "refused/refused")

@@ -41,6 +41,7 @@ def test_detectors_take_any_frame_sequence(name: str, rand: random.Random) -> No
 
 @pytest.mark.parametrize("w,h", [(0, 0), (0, 8), (16, 0)])
 def test_an_empty_genicam_buffer_is_a_frame_error(w: int, h: int) -> None:
-    """Found by fuzzing: a 0-pixel frame reached cv2.cvtColor and raised cv2.error."""
+    """A fuzzing case: a 0-pixel frame is a FrameError before cv2.cvtColor (which raises
+    cv2.error on it)."""
     with pytest.raises(FrameError, match="WRONG_SIZE"):
         to_bgr(np.zeros(0, np.uint8), w, h, "BayerRG8")

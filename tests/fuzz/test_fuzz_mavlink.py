@@ -44,14 +44,15 @@ def test_hil_state_json_is_taken_or_counted(rand: random.Random) -> None:
 
 
 def test_deeply_nested_hil_json_is_counted_not_raised() -> None:
-    """Found by fuzzing: ``[[[[...`` raised RecursionError out of HilTruth.on_message."""
+    """A fuzzing case: ``[[[[...`` is counted by HilTruth.on_message, not a RecursionError out
+    of it."""
     truth = HilTruth()
     assert check_hil(truth, 1, "[" * 100_000) == "rejected" and truth.errors == 1
 
 
 def test_a_non_finite_offboard_setpoint_is_ignored_by_the_emulator() -> None:
-    """Found by fuzzing: SET_POSITION_TARGET_LOCAL_NED with z = -inf made the handler raise
-    (Setpoint.down_m must be finite), logged as "emulator: cannot handle"."""
+    """A fuzzing case: SET_POSITION_TARGET_LOCAL_NED with z = -inf is ignored, not a handler
+    error (Setpoint.down_m must be finite) logged as "emulator: cannot handle"."""
     from eaglemission.lab.vehicles.emulator.dialect import M
 
     rig = EmulatorRig.new()

@@ -60,8 +60,8 @@ def _at(hostile: _Scripted, n: float, e: float, d: float) -> VehicleState:
 
 
 async def test_nan_position_holds_the_last_setpoint() -> None:
-    """Found by fuzzing: a NaN position made set_setpoint raise ValueError (Setpoint.north_m
-    must be finite) instead of holding."""
+    """A fuzzing case: with a NaN position set_setpoint holds, it does not raise ValueError
+    (Setpoint.north_m must be finite)."""
     safe, hostile, clock = await _rig(SafetyConfig())
     await safe.start_offboard(Setpoint(0.0, 0.0, -1.0, 0.0))
     await safe.set_setpoint(Setpoint(5.0, 0.0, -5.0, 0.0))
@@ -75,8 +75,8 @@ async def test_nan_position_holds_the_last_setpoint() -> None:
 
 
 async def test_nan_position_refuses_what_needs_a_start() -> None:
-    """Found by fuzzing: goto / upload_mission with a NaN position raised ValueError ("cannot
-    convert float NaN to integer") from the path check."""
+    """A fuzzing case: goto / upload_mission with a NaN position are refused, not a ValueError
+    ("cannot convert float NaN to integer") from the path check."""
     safe, hostile, _ = await _rig(SafetyConfig(geofence=GeofenceConfig(polygon_ned_m=SQUARE)))
     home = hostile.inner.state().home
     assert home is not None
@@ -89,8 +89,8 @@ async def test_nan_position_refuses_what_needs_a_start() -> None:
 
 
 async def test_a_step_left_from_before_an_altitude_jump_stays_in_the_band() -> None:
-    """Found by fuzzing: the reported altitude jumped after a step was sent; the next step
-    (dt = 0) repeated the old one, below the band and below the vehicle."""
+    """A fuzzing case: the reported altitude jumps after a step was sent; the next step (dt = 0)
+    must not repeat the earlier one, below the band and below the vehicle."""
     safety = SafetyConfig(min_altitude_m=5.0, max_altitude_m=20.0)
     safe, hostile, _ = await _rig(safety)
     hostile.override = _at(hostile, 0.0, 0.0, -0.1)  # on the ground, below the band
@@ -102,8 +102,8 @@ async def test_a_step_left_from_before_an_altitude_jump_stays_in_the_band() -> N
 
 
 async def test_a_position_a_million_km_away_is_stepped_without_stalling() -> None:
-    """Found by fuzzing: the path search sampled every 0.25 m up to the reported position (a
-    telemetry jump of 1e9 m meant 4e9 samples inside set_setpoint)."""
+    """A fuzzing case: a path search sampling every 0.25 m up to the reported position would
+    take 4e9 samples inside set_setpoint after a telemetry jump of 1e9 m."""
     safe, hostile, clock = await _rig(SafetyConfig(geofence=GeofenceConfig(polygon_ned_m=SQUARE)))
     await safe.start_offboard(Setpoint(0.0, 0.0, -3.0, 0.0))
     hostile.override = _at(hostile, 1e9, -1e9, -3.0)
@@ -113,7 +113,7 @@ async def test_a_position_a_million_km_away_is_stepped_without_stalling() -> Non
 
 
 def test_a_polygon_without_room_inside_its_margin_is_refused_at_construction() -> None:
-    """Found by fuzzing: such a fence failed mid-flight ("the geofence leaves no room")."""
+    """A fuzzing case: such a fence would fail mid-flight ("the geofence leaves no room")."""
     tiny = [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)]
     with pytest.raises(ValueError, match="polygon_ned_m: neither home nor"):
         SafeVehicle(SimulatedVehicle(clock=ManualClock()),
@@ -121,8 +121,8 @@ def test_a_polygon_without_room_inside_its_margin_is_refused_at_construction() -
 
 
 async def test_an_absurdly_far_but_finite_position_is_no_position() -> None:
-    """Found by fuzzing (hypothesis drew a drift of 9e307 m): the step overflowed to NaN and
-    set_setpoint raised ValueError."""
+    """A fuzzing case (hypothesis drew a drift of 9e307 m): the step must not overflow to NaN
+    and make set_setpoint raise ValueError."""
     safe, hostile, clock = await _rig(SafetyConfig(geofence=GeofenceConfig(radius_m=15.0)))
     await safe.start_offboard(Setpoint(0.0, 0.0, -1.0, 0.0))
     hostile.override = _at(hostile, 0.0, 8.98846567431158e307, -1.0)
@@ -148,10 +148,10 @@ class _Sequenced(HostileTelemetry):
 
 
 async def test_goto_checks_the_home_and_the_position_of_one_sample() -> None:
-    """Found by fuzzing (`benchmarks/fuzz.py --telemetry 100000 --seed 16`: 49 scripts): goto
-    took the home from one telemetry read and the position from the next; with a replayed
-    sample that had no home in between, it sent a target placed by a home the vehicle no
-    longer reported."""
+    """A fuzzing case (`benchmarks/fuzz.py --telemetry 100000 --seed 16`: 49 scripts): goto
+    takes the home and the position from one telemetry read; from two reads, with a replayed
+    sample without home in between, it would send a target placed by a home the vehicle no
+    longer reports."""
     hostile = _Sequenced(SimulatedVehicle(clock=ManualClock()))
     safe = SafeVehicle(hostile, SafetyConfig(), clock=ManualClock())  # type: ignore[arg-type]
     await safe.connect()

@@ -13,7 +13,7 @@ from eaglemission.missions.mission import ApproachOutcome
 
 from eaglemission.config import MissionFile
 
-# the old harness's names for some kinds
+# the tests' names for some kinds (the section's names on the right)
 _ALIASES = {"camera_dropout": "camera_drop", "battery_low": "battery_drain"}
 
 
@@ -31,7 +31,7 @@ class Fault:
     def spec(self) -> dict[str, Any]:
         kind = _ALIASES.get(self.kind, self.kind)
         out: dict[str, Any] = {"kind": kind, "at_state": self.at_state, "delay_s": self.delay_s,
-                               # a battery level lasts: the old harness gave it no duration
+                               # a battery level lasts: a duration of 0 means a step change
                                "duration_s": self.duration_s if self.duration_s > 0 else 1.0}
         if self.value is not None:
             out["size"] = self.value

@@ -1,4 +1,4 @@
-"""The preflight puts the autopilot's own behaviour inside the envelope (issue 13): a flight
+"""The preflight puts the autopilot's own behaviour inside the envelope: a flight
 whose envelope is below RTL_RETURN_ALT gets it set before the flight and restored after (read
 back from the vehicle), ``safety.autopilot_params: refuse`` refuses with the parameter and the
 envelope key, and the log has the parameters read and set. Simulated vehicle, virtual time."""

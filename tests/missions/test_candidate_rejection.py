@@ -1,7 +1,8 @@
-"""A candidate the mission keeps losing at one place is rejected (``max_target_losses``): its
-estimates neither confirm nor track, and ``on_target_lost`` applies at once. Found by the
-1000-run fault campaign (docs/faults.md: runs 404 and 645 looped on a distractor the fine
-approach's plane fit refused, until the battery ran low)."""
+"""A candidate the mission keeps losing at one place is rejected (``tracking.max_losses``): its
+estimates neither confirm nor track, and ``actions.on_target_lost`` applies at once (without it
+the mission would loop on a distractor the fine approach's plane fit refuses, until the battery
+ran low). A candidate whose outline is not the target's shape is rejected too
+(``tracking.shape``)."""
 
 from __future__ import annotations
 
@@ -16,25 +17,30 @@ from eaglemission.missions.approach import (
     lost_resumes_cruise,
 )
 from eaglemission.missions.approach_config import ApproachConfig
-from eaglemission.missions.guidance import Guidance, GuidanceConfig
+from eaglemission.missions.guidance import Guidance, Plan
 from eaglemission.missions.log import MissionLog
-from eaglemission.missions.tracking import TargetTracking, heading_consistency
+from eaglemission.missions.tracking import TargetTracking
 from mission_helpers import variant
 
 from eaglemission.config import MissionFile, load_config
 
 
-def _tracking(**params: object) -> TargetTracking:
+def _tracking(**tracking: object) -> TargetTracking:
+    """The embedded mission's target tracking, with ``mission.params.tracking`` keys replaced."""
     cfg = load_config(check_plugins=False)
-    if params:
-        cfg = variant(cfg, mission={"params": {**cfg.mission.params, **params}})
+    if tracking:
+        params = dict(cfg.mission.params)
+        params["tracking"] = {**params.get("tracking", {}), **tracking}
+        cfg = variant(cfg, mission={"params": params})
+    p = ApproachConfig.of(cfg)
     models = {cid: getattr(cfg.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
-    return TargetTracking(cfg, ApproachConfig.of(cfg), models, MissionLog(None, now_ns=lambda: 0))
+    return TargetTracking(cfg, models, MissionLog(None, now_ns=lambda: 0), tracking=p.tracking,
+                          perception=p.perception, plane=p.plane, grasp=p.grasp)
 
 
 def test_the_third_loss_near_one_place_rejects_it_and_only_it() -> None:
     t = _tracking()
-    assert t.p.max_target_losses == 3
+    assert t.p.max_losses == 3
     assert t.count_loss() is None and not t.just_rejected  # never tracked: nothing to count
     t.last_target = (8.5, 0.7, -0.2)
     for n in (1, 2):
@@ -42,7 +48,7 @@ def test_the_third_loss_near_one_place_rejects_it_and_only_it() -> None:
         assert place == (8.5, 0.7) and t.losses_at(place) == n and not t.just_rejected
     t.last_target = (20.0, 0.0, -0.2)  # lost once elsewhere: a place of its own
     assert t.count_loss() == (20.0, 0.0) and t.last_losses == 1 and not t.just_rejected
-    t.last_target = (9.9, 2.5, -0.2)  # within search_radius_m + confirm_radius_m: the same place
+    t.last_target = (9.9, 2.5, -0.2)  # within reacquire_radius_m + confirm_radius_m: the same place
     assert t.count_loss() == (8.5, 0.7) and t.last_losses == 3 and t.just_rejected
     assert t.rejected == [(8.5, 0.7)]
     assert t.is_rejected((8.5 + 2.9, 0.7, 0.0)) and not t.is_rejected((8.5 + 3.1, 0.7, 0.0))
@@ -52,12 +58,12 @@ def test_the_third_loss_near_one_place_rejects_it_and_only_it() -> None:
 
 
 def test_the_bound_is_configurable() -> None:
-    t = _tracking(max_target_losses=1)
+    t = _tracking(max_losses=1)
     t.last_target = (1.0, 1.0, 0.0)
     t.count_loss()
     assert t.just_rejected and t.is_rejected((1.0, 1.0, 0.0))
-    with pytest.raises(ValueError, match="max_target_losses"):
-        _tracking(max_target_losses=0)
+    with pytest.raises(ValueError, match="max_losses"):
+        _tracking(max_losses=0)
 
 
 def test_a_rejected_candidate_resumes_the_search_or_takes_the_configured_action() -> None:
@@ -65,9 +71,9 @@ def test_a_rejected_candidate_resumes_the_search_or_takes_the_configured_action(
     snap = Snapshot(candidate_rejected=True, target_losses=3, has_target=True,
                     time_in_state_s=0.1, state_timeout_s=20.0)
     assert lost_resumes_cruise(snap)
-    assert failsafe(S.TARGET_LOST, snap, cfg.safety, ApproachConfig.of(cfg)) is None
+    assert failsafe(S.TARGET_LOST, snap, cfg.safety, ApproachConfig.of(cfg).actions) is None
     land = ApproachConfig.of(variant(cfg, mission={
-        "params": {**cfg.mission.params, "on_target_lost": "land"}}))
+        "params": {**cfg.mission.params, "actions": {"on_target_lost": "land"}}})).actions
     abort = failsafe(S.TARGET_LOST, Snapshot(candidate_rejected=True, target_losses=3,
                                              on_target_lost="land"), cfg.safety, land)
     assert abort is not None and abort.action == "land" and "3 times" in abort.reason
@@ -117,47 +123,8 @@ def test_a_distractor_lost_three_times_is_rejected_and_the_target_is_grasped(
     assert not ev.violations
 
 
-def test_heading_consistency_is_one_when_headings_agree_modulo_a_half_turn() -> None:
-    assert heading_consistency([10.0, 190.0, 10.0]) == pytest.approx(1.0)
-    assert heading_consistency([0.0, 90.0]) == pytest.approx(0.0, abs=1e-12)
-    assert heading_consistency([165.0] * 10 + [15.0] * 3) > 0.9  # a mirrored fit now and then
-    assert heading_consistency([135.0] * 12 + [0.0] * 10 + [60.0] * 4) < 0.5
-    assert heading_consistency([]) == 0.0
-
-
-def test_a_candidate_whose_heading_wanders_is_rejected_and_its_track_dropped() -> None:
-    t = _tracking(heading_min_consistency=0.6, heading_min_views=4)
-    t.filter.update((37.9, -3.3, -0.2), 0.1, 1)
-    t.last_target = (37.9, -3.3, -0.2)
-    for yaw in (135.0, 135.0, 140.0):
-        t.check_shape(yaw, (37.9, -3.3, -0.2))
-    assert not t.misshapen and t.filter.state(1) is not None
-    t.check_shape(45.0, (37.9, -3.3, -0.2))  # 4 views: consistency 0.48
-    assert list(t.misshapen) == [(37.9, -3.3)] and "not the target's shape" in \
-        t.misshapen[(37.9, -3.3)]
-    assert t.filter.state(1) is None and t.is_rejected((38.5, -3.0, 0.0))
-    assert t.count_loss() == (37.9, -3.3) and t.just_rejected and t.last_losses == 1
-
-
-def test_the_heading_check_is_off_by_default_and_for_a_square_target() -> None:
-    t = _tracking(heading_min_views=2)
-    for yaw in (0.0, 90.0, 0.0, 90.0):
-        t.check_shape(yaw, (1.0, 1.0, 0.0))
-    assert not t.misshapen
-    cfg = load_config(check_plugins=False)
-    square = variant(cfg, target={**cfg.target.model_dump(), "length_m": 0.3, "width_m": 0.3},
-                     mission={"params": {**cfg.mission.params, "heading_min_consistency": 0.6,
-                                         "heading_min_views": 2}})
-    models = {cid: getattr(square.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
-    s = TargetTracking(square, ApproachConfig.of(square), models,
-                       MissionLog(None, now_ns=lambda: 0))
-    for yaw in (0.0, 90.0, 0.0, 90.0):
-        s.check_shape(yaw, (1.0, 1.0, 0.0))
-    assert not s.misshapen
-
-
 def test_a_candidate_whose_outline_is_not_the_targets_shape_is_rejected() -> None:
-    t = _tracking(silhouette_min_iou=0.9, silhouette_min_views=4)
+    t = _tracking(shape={"min_iou": 0.9, "min_views": 4})
     t.filter.update((37.8, -3.2, -0.2), 0.1, 1)
     t.last_target = (37.8, -3.2, -0.2)
     for iou in (0.81, 0.80, 0.97):  # 3 views: not judged yet
@@ -171,7 +138,7 @@ def test_a_candidate_whose_outline_is_not_the_targets_shape_is_rejected() -> Non
 
 
 def test_the_target_keeps_its_track_through_a_few_poor_outlines() -> None:
-    t = _tracking(silhouette_min_iou=0.9, silhouette_min_views=4)
+    t = _tracking(shape={"min_iou": 0.9, "min_views": 4})
     t.filter.update((22.0, 1.5, -0.2), 0.1, 1)
     for iou in (0.97, 0.6, 0.98, 0.96, 0.55, 0.99, 0.97):  # a merged blob now and then
         t.check_shape(20.0, (22.0, 1.5, -0.2), "wide", iou)
@@ -182,8 +149,8 @@ def test_the_target_keeps_its_track_through_a_few_poor_outlines() -> None:
 
 def test_the_silhouette_check_is_on_by_default_and_can_be_turned_off() -> None:
     t = _tracking()
-    assert t.p.silhouette_min_iou == 0.86 and t.p.silhouette_min_views == 8
-    off = _tracking(silhouette_min_iou=None, silhouette_min_views=1)
+    assert t.p.shape.min_iou == 0.86 and t.p.shape.min_views == 8
+    off = _tracking(shape={"min_iou": None, "min_views": 1})
     for _ in range(10):
         off.check_shape(0.0, (1.0, 1.0, 0.0), "narrow", 0.5)
     assert not off.misshapen
@@ -191,12 +158,14 @@ def test_the_silhouette_check_is_on_by_default_and_can_be_turned_off() -> None:
 
 def test_a_granted_pass_flies_back_to_the_route_start_before_the_route_ends() -> None:
     cfg = load_config(check_plugins=False)
-    g = Guidance(GuidanceConfig.of(cfg, ApproachConfig.of(cfg)))
-    route = g.c.route_ne_m
+    p = ApproachConfig.of(cfg)
+    g = Guidance(Plan.of(cfg, p.grasp.distance_m), p.guidance)
+    assert p.guidance.max_route_passes == 2
+    route = g.plan.route_ne_m
     end = (route[-1][0], route[-1][1], -cfg.mission.cruise_altitude_m)
     g.route_s_m = g.route_len_m
     assert g.route_finished(end)
-    assert g.search_route_again(2) is not None and g.search_route_again(2) is None
+    assert g.search_route_again() is not None and g.search_route_again() is None
     assert not g.route_finished(end)
     goal = g.goal("ROUTE", end, 0.0, (1.0, 0.0, 0.0, 0.0), None, 0, 0.1)
     assert goal is not None and goal[0][:2] == pytest.approx(route[0])
@@ -208,8 +177,8 @@ def test_a_granted_pass_flies_back_to_the_route_start_before_the_route_ends() ->
 
 
 @pytest.fixture
-def run_521() -> MissionFile:
-    """World 521 of ``fault_campaign.py --seed 3 --binning 2`` (``command_denied`` in the coarse
+def square_box_past_the_target() -> MissionFile:
+    """A campaign world (``fault_campaign.py --binning 2``, ``command_denied`` in the coarse
     approach): the target at N 28.0 m is seen once in cruise, unconfirmed; a red box 0.32 m
     square (the target's colour and top area, 0.40 x 0.25 m) at N 37.8 m is confirmed, and
     every plane fit explains it, each at another heading."""
@@ -227,19 +196,20 @@ def run_521() -> MissionFile:
                             "delay_s": 1.389, "duration_s": 1.0, "command": "set_setpoint"}]})
 
 
-#: the mission's detector until 6 Dec 2026, which confirms the box of run 521 before the target
+#: DTDMI's `field` preset, which confirms the square box before the target in that world
 FIELD_DETECTOR = {"type": "dtdmi", "params": {"preset": "field", "use_dynamic": False,
                                               "downscale": 2}}
 
 
 def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_again(
-        run_521: MissionFile, tmp_path: Path) -> None:
-    """With the default silhouette check: the box's outlines fit the target's shape at IoU
-    0.7-0.8 (the target's own at 0.9-1), so it is rejected after 8 views; the route is flown
-    again and the target grasped (before the check: GRASP_READY on the box, 11.2 m away).
+        square_box_past_the_target: MissionFile, tmp_path: Path) -> None:
+    """With the default shape check: the box's outlines fit the target's shape at IoU 0.7-0.8
+    (the target's own at 0.9-1), so it is rejected after 8 views; the route is flown again and
+    the target grasped (without the check, GRASP_READY on the box, 11.2 m from the target).
     Flown with the `field` detector, which confirms the box first (the shipped `aerial` +
     image confirms the target first: the next test)."""
-    field = variant(run_521, detector=FIELD_DETECTOR, target={"appearance_image": None})
+    field = variant(square_box_past_the_target, detector=FIELD_DETECTOR,
+                    target={"appearance_image": None})
     out = run_simulation(field, log_path=tmp_path / "run.jsonl")
     ev = out.evaluation
     texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
@@ -254,11 +224,11 @@ def test_a_square_box_of_the_targets_colour_is_rejected_and_the_route_searched_a
     assert not ev.violations
 
 
-def test_the_shipped_detector_confirms_the_target_of_run_521_not_the_box(
-        run_521: MissionFile, tmp_path: Path) -> None:
+def test_the_shipped_detector_confirms_the_target_not_the_square_box(
+        square_box_past_the_target: MissionFile, tmp_path: Path) -> None:
     """The embedded mission's detector (`aerial` + the target's example image) takes the target
     at N 28 m on its first sighting: no candidate to reject, grasped within 5 cm."""
-    out = run_simulation(run_521, log_path=tmp_path / "run.jsonl")
+    out = run_simulation(square_box_past_the_target, log_path=tmp_path / "run.jsonl")
     ev = out.evaluation
     texts = [r["text"] for r in out.log.records if r["kind"] == "event"]
     assert not any("does not fit the target's shape" in t or "candidate rejected" in t

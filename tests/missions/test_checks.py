@@ -18,9 +18,10 @@ def test_default_geometry_is_valid() -> None:
 
 def test_standoff_outside_the_narrow_view_is_rejected() -> None:
     cfg = load_config(check_plugins=False)
-    bad = variant(cfg, mission={"params": {**cfg.mission.params, "standoff": {"horizontal_m": 0.5, "height_m": 3.0}}})
+    bad = variant(cfg, mission={"params": {**cfg.mission.params, "guidance": {
+        "standoff": {"horizontal_m": 0.5, "height_m": 3.0}}}})
     problems = check_mission_geometry(bad)
-    assert any(p.startswith("mission.params.standoff") and "narrow" in p for p in problems)
+    assert any(p.startswith("mission.params.guidance.standoff") and "narrow" in p for p in problems)
 
 
 def test_altitude_band_and_geofence() -> None:
@@ -36,13 +37,14 @@ def test_altitude_band_and_geofence() -> None:
 
 def test_registered_for_validate(tmp_path: Path) -> None:
     cfg = load_config(check_plugins=False)
-    bad = variant(cfg, mission={"params": {**cfg.mission.params, "standoff": {"horizontal_m": 0.5, "height_m": 3.0}}})
-    assert any(p.startswith("mission.params.standoff") for p in run_checks(bad))
+    bad = variant(cfg, mission={"params": {**cfg.mission.params, "guidance": {
+        "standoff": {"horizontal_m": 0.5, "height_m": 3.0}}}})
+    assert any(p.startswith("mission.params.guidance.standoff") for p in run_checks(bad))
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(bad.model_dump(mode="json")))
     proc = subprocess.run([sys.executable, "-m", "eaglemission.cli", "validate", str(path)],
                           capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "mission.params.standoff" in proc.stderr
+    assert proc.returncode == 2 and "mission.params.guidance.standoff" in proc.stderr
 
 
 def test_the_approach_defaults_pass_the_geometry_check() -> None:

@@ -1,4 +1,4 @@
-"""Every deployment is a config flown through the one assembly (issue 11), tested with real
+"""Every deployment is a config flown through the one assembly, tested with real
 processes: ``eaglemission run`` against ``eaglemission sitl-vehicle`` on a free port, the
 replay of a recording, the field path on the genicam wheel's GenTL test producer, an
 unreachable autopilot, and Ctrl-C in flight."""

@@ -1,8 +1,8 @@
 """The mission through MAVSDK against the emulator when the link goes down just as offboard
-starts (issue 16's 50-run emulator campaign, run 3: the driver's bounded wait for OFFBOARD ran
-out with a ``TimeoutError_``, which the actuator did not take for a refused command, and the
-mission crashed with "unhandled errors in a TaskGroup"). It must end in the link-loss action,
-with the log complete and no envelope violation."""
+starts: the driver's bounded wait for OFFBOARD runs out with a ``TimeoutError_``, which the
+actuator must take for a refused command (not crash the mission with "unhandled errors in a
+TaskGroup"). It must end in the link-loss action, with the log complete and no envelope
+violation."""
 
 from __future__ import annotations
 

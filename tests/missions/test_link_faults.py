@@ -1,5 +1,4 @@
-"""The link's timing faults (issue 16: link_delay, link_duplicate, link_reorder,
-autopilot_clock_jump) injected at the simulated vehicle's telemetry boundary in short
+"""The link's timing faults (link_delay, link_duplicate, link_reorder, autopilot_clock_jump) injected at the simulated vehicle's telemetry boundary in short
 virtual-time flights: each ends in its expected outcome (docs/faults.md) with no envelope
 violation and a ``fault_detected`` record of the mission noticing; a delay beyond
 ``safety.max_telemetry_age_s`` ends in the link-loss failsafe."""
@@ -65,9 +64,9 @@ def test_a_delay_beyond_the_age_bound_ends_in_the_link_loss_action(
 
 def test_a_slow_autopilot_clock_is_not_a_lost_link(fast_config: MissionFile,
                                                    tmp_path: Path) -> None:
-    """PX4 SITL's clock ran 2 % slow against the host's on this machine under the mission's
-    load (issue 13, a local SITL): with the age judged on a fixed anchor the telemetry read
-    0.5 s old after 25 s of flight and the mission failed safe over a healthy link."""
+    """PX4 SITL's clock runs up to 2 % slow against the host's under the mission's load (a
+    local SITL): with the age judged on a fixed anchor the telemetry would read 0.5 s old after
+    25 s of flight and the mission fail safe over a healthy link."""
     params = {**fast_config.vehicle.params, "autopilot_clock_rate": 0.98}
     cfg = variant(fast_config, vehicle={"params": params})
     log = tmp_path / "slow.jsonl"

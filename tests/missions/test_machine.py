@@ -21,7 +21,7 @@ from eaglemission.missions.approach import (
     failsafe,
     mermaid_diagram,
 )
-from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.approach_config import ActionsConfig
 from transitions import MachineError
 
 from eaglemission.config import load_config
@@ -145,9 +145,9 @@ def test_abort_from_every_active_state(state: MissionState) -> None:
     assert m.step(READY, Abort("again", "hold")) is None  # final: nothing fires any more
 
 
-def _fs(state: MissionState, snap: Snapshot, **params: object) -> Abort | None:
+def _fs(state: MissionState, snap: Snapshot, **actions: object) -> Abort | None:
     cfg = load_config(check_plugins=False)
-    return failsafe(state, snap, cfg.safety, ApproachConfig(**params))
+    return failsafe(state, snap, cfg.safety, ActionsConfig.model_validate(actions))
 
 
 def test_failsafes_map_to_configured_actions() -> None:
@@ -159,9 +159,9 @@ def test_failsafes_map_to_configured_actions() -> None:
     assert _fs(S.FINE_APPROACH, Snapshot(battery_remaining=0.1)).action == s.low_battery_action
     assert _fs(S.CRUISE, Snapshot(pilot_override=True)).action == "release"
     assert _fs(S.CRUISE, Snapshot(camera_failed=True),
-               camera_failure_action="land").action == "land"
+               on_camera_failure="land").action == "land"
     assert _fs(S.COARSE_APPROACH, Snapshot(goal_inside_geofence=False),
-               geofence_action="hold").action == "hold"
+               on_geofence="hold").action == "hold"
     # on the ground nothing is flown: failures end with action none
     assert _fs(S.PREFLIGHT, Snapshot(battery_remaining=0.1)).action == "none"
     # priority: link loss is reported before the mode change it causes
@@ -175,7 +175,7 @@ def test_failsafes_map_to_configured_actions() -> None:
 
 def test_state_timeouts() -> None:
     assert _fs(S.CRUISE, Snapshot(time_in_state_s=10, state_timeout_s=120)) is None
-    ab = _fs(S.CRUISE, Snapshot(time_in_state_s=121, state_timeout_s=120), timeout_action="land")
+    ab = _fs(S.CRUISE, Snapshot(time_in_state_s=121, state_timeout_s=120), on_timeout="land")
     assert ab is not None and "timed out" in ab.reason and ab.action == "land"
     # TARGET_LOST with on_target_lost=resume_cruise: no abort, the resume transition fires
     lost = Snapshot(time_in_state_s=16, state_timeout_s=15, search_exhausted=True)
@@ -185,7 +185,7 @@ def test_state_timeouts() -> None:
 
 
 def test_route_end_without_target_is_a_failsafe() -> None:
-    ab = _fs(S.CRUISE, Snapshot(route_finished=True), route_end_action="return")
+    ab = _fs(S.CRUISE, Snapshot(route_finished=True), on_route_end="return")
     assert ab is not None and ab.action == "return"
 
 

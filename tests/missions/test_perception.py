@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from eaglemission.estimators.top_plane import TopPlaneFitter
-from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.approach_config import PerceptionConfig
 from eaglemission.missions.perception import Perception, Provenance, Request, Tools, inside_polygon
 from eaglemission.missions.target_state import PlaneState
 from world_helpers import approach_pose, detection_from_polygon
@@ -68,9 +68,9 @@ def scene(sitl_config):
 def _perceive(scene, coarse, fine, *, fitter=True, params=None, estimator="fine",
               thumbnails=True):
     model, target, top, det, state, frame = scene
-    p = params or ApproachConfig(colour_check=False, colour_track=False)
+    p = params or PerceptionConfig()
     tools = Tools(OneDetection(det), coarse, fine,
-                  TopPlaneFitter(target=target) if fitter else None, None)
+                  TopPlaneFitter(target=target) if fitter else None, None)  # no colour model
     req = Request(frame, model, state, estimator, None, True, None, PlaneState(0.0, 0.04))
     return Perception(p, target, thumbnails=thumbnails).perceive(req, tools)
 
@@ -92,11 +92,10 @@ def test_a_fine_estimate_refined_by_the_plane_fit(scene) -> None:
 
 
 def test_a_fallback_keeps_its_provenance_and_without_a_fitter_its_down_weighting(scene) -> None:
-    """gh-12: a rescued coarse fallback used to be renamed "fit:" and counted as fine by its
-    source prefix. Now the provenance is typed: a fallback stays FALLBACK; the plane fit's
-    position (from the detection) counts as a fine measurement, weighted by the fit; an
-    unrefined fallback is the coarse estimate, down-weighted, and does not count."""
-    params = ApproachConfig(colour_check=False, colour_track=False, fallback_std_factor=3.0)
+    """The provenance is typed, not read from the source's name: a fallback stays FALLBACK; the
+    plane fit's position (from the detection) counts as a fine measurement, weighted by the
+    fit; an unrefined fallback is the coarse estimate, down-weighted, and does not count."""
+    params = PerceptionConfig(fallback_std_factor=3.0)
     coarse = FixedEstimator((20.1, 1.1, -0.15), source="bearing", std_m=0.3)
     refined = _perceive(scene, coarse, FixedEstimator(None), params=params)
     assert refined.provenance is Provenance.FALLBACK and refined.refined
@@ -130,17 +129,17 @@ def test_no_estimator_no_estimate_and_a_refusal_says_why(scene) -> None:
     assert d.estimate is None and d.failure is None and d.provenance is None
 
 
-@pytest.mark.parametrize("paint_at_target,fragment", [(True, False), (True, True),
-                                                      (False, False)])
+@pytest.mark.parametrize("predicted_on_target,fragment", [(True, False), (True, True),
+                                                          (False, False)])
 def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
-        scene, paint_at_target, fragment) -> None:
+        scene, predicted_on_target, fragment) -> None:
     """Close range, a fine estimate asked: the target colour's region (the real
     :class:`TargetAppearance`) comes before the detector's region when one centre lies in the
-    other's MBR (one box fit on the region that follows the target's edges); a colour region
-    elsewhere does not. ``fragment``: the detector's region is the lower third of the target,
-    as a saliency region at the narrow image's bottom border near the grasp pose can be; the
-    colour region's centre lies outside it (a fit of the fragment alone ends the grasp
-    centimetres off)."""
+    other's MBR (one box fit on the region that follows the target's edges); a region of the
+    target's colour elsewhere (300 px above, where the prediction points) does not.
+    ``fragment``: the detector's region is the lower third of the target, as a saliency region
+    at the narrow image's bottom border near the grasp pose can be; the colour region's centre
+    lies outside it (a fit of the fragment alone ends the grasp centimetres off)."""
     import cv2
 
     from eaglemission.perception.appearance import TargetAppearance
@@ -148,8 +147,10 @@ def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
     model, target, top, det, state, frame = scene
     image = frame.image.copy()
     poly = np.asarray(det.corners_px, np.float64)
-    if not paint_at_target:
-        poly = poly + (300.0, 0.0)
+    colour = tuple(int(c) for c in target.color_bgr)
+    if not predicted_on_target:  # the target painted, and a patch of its colour elsewhere
+        cv2.fillPoly(image, [np.round(poly).astype(np.int32)], colour)
+        poly = poly + (0.0, -300.0)  # clear of the target's outline, inside the gate
     outline_centre = det.center_px
     if fragment:  # the lowest third of the painted outline (image v grows downwards)
         v_cut = poly[:, 1].max() - (poly[:, 1].max() - poly[:, 1].min()) / 3.0
@@ -158,18 +159,17 @@ def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
                                                [-1e4, 1e4]], np.float32))[1].reshape(-1, 2)
         det = detection_from_polygon(cv2.boxPoints(cv2.minAreaRect(low)), "narrow")
         assert not inside_polygon(tuple(poly.mean(axis=0)), det.corners_px)
-    cv2.fillPoly(image, [np.round(poly).astype(np.int32)], tuple(int(c) for c in target.color_bgr))
+    cv2.fillPoly(image, [np.round(poly).astype(np.int32)], colour)
     frame = Frame(image, frame.timestamp_ns, frame.camera_id, frame.seq)
     appearance = TargetAppearance.of_target(target)
     tools = Tools(OneDetection(det), FixedEstimator((0.0, 0.0, 0.0)),
                   FixedEstimator((9.0, 9.0, 9.0)), None, appearance)
-    p = ApproachConfig(colour_check=False, colour_track=True)
     centre = tuple(float(x) for x in poly.mean(axis=0))
     req = Request(frame, model, state, "fine", centre, True, None, PlaneState(0.0, 0.04))
-    m = Perception(p, target).perceive(req, tools)
-    assert m.colour_tracked is paint_at_target
+    m = Perception(PerceptionConfig(), target).perceive(req, tools)
+    assert m.colour_tracked is predicted_on_target
     assert m.detection is not None
-    if paint_at_target:
+    if predicted_on_target:
         assert m.detection is not det and m.detection.hull_px is not None
         np.testing.assert_allclose(m.detection.center_px, outline_centre, atol=3.0)
     else:

@@ -1,9 +1,9 @@
-"""The mission's event loop stalls, the driver's offboard watchdog commands HOLD: found on a
-local PX4 v1.16 SITL (2026-12-06, `eaglemission run configs/px4_sitl.yaml` with both cores
-loaded): the loop stalled 0.57 s in FINE_DESCENT, the watchdog commanded HOLD, and the mission
-took its own HOLD for a pilot's mode change and *released* control, leaving the vehicle
-hovering in HOLD with no one flying it. Now the watchdog's HOLD is the mission's own fault:
-it is logged once and the mission ends in ``timeout_action`` (return), landed."""
+"""The mission's event loop stalls and the driver's offboard watchdog commands HOLD (seen on a
+local PX4 v1.16 SITL, `eaglemission run configs/px4_sitl.yaml` with both cores loaded: a
+0.57 s stall in FINE_DESCENT). That HOLD is the mission's own fault, not a pilot's mode change:
+taken for one, the mission would *release* control and leave the vehicle hovering in HOLD with
+no one flying it. It is logged once and the mission ends in ``actions.on_timeout`` (return),
+landed."""
 
 from __future__ import annotations
 
@@ -23,11 +23,11 @@ from eaglemission.config import MissionFile, load_config
 
 def test_the_watchdogs_hold_is_the_missions_fault_not_a_pilots() -> None:
     cfg = load_config(check_plugins=False)
-    p = ApproachConfig.of(cfg)
+    p = ApproachConfig.of(cfg).actions
     held = Snapshot(watchdog_hold="no fresh setpoint for 0.57 s (watchdog 0.5 s)",
                     pilot_override=True)
     abort = failsafe(S.FINE_DESCENT, held, cfg.safety, p)
-    assert abort is not None and abort.action == p.timeout_action == "return"
+    assert abort is not None and abort.action == p.on_timeout == "return"
     assert "offboard watchdog commanded HOLD: no fresh setpoint for 0.57 s" in abort.reason
     pilot = failsafe(S.FINE_DESCENT, Snapshot(pilot_override=True), cfg.safety, p)
     assert pilot is not None and pilot.action == "release"  # a real pilot keeps control

@@ -15,8 +15,8 @@ autopilot says (status texts, mode changes, failsafes, mission items) goes to an
 :class:`AutopilotListener`: the simulated vehicle makes :class:`~eaglemission.types.VehicleEvent`
 s of it, the emulator STATUSTEXT, HEARTBEAT and MISSION_* messages.
 
-The two vehicles differed in details before they shared this model; :class:`AutopilotParams`
-keeps each one's behaviour where it was observable (its fields say what each vehicle sets;
+The two vehicles differ in details; :class:`AutopilotParams` keeps each one's behaviour where
+it is observable (its fields say what each vehicle sets;
 docs/vehicles.md has the table next to the recorded PX4), so that aligning both with the
 recordings is a change of parameters.
 

@@ -57,8 +57,8 @@ BATTERY_NAMES = {1: "Low", 2: "Critical", 3: "Emergency"}
 class AutopilotParams:
     """The autopilot's parameters (PX4 names in brackets).
 
-    Where the simulated vehicle and the emulator behaved differently before they shared this
-    model, a parameter keeps each one's behaviour; the value each sets is given as
+    Where the simulated vehicle and the emulator behave differently, a parameter keeps each
+    one's behaviour; the value each sets is given as
     ``sim`` / ``emu`` (built by ``simulated_config.autopilot_params`` and
     ``emulator_config.emulator_autopilot_params``; docs/vehicles.md has the table).
     """

@@ -129,7 +129,7 @@ class CommandHandlers:
 
     def takeoff(self, msg: Any, p: list[float], frame: int | None) -> int:
         """NAV_TAKEOFF. Disarmed, PX4 v1.16 ACCEPTs it and only selects Takeoff, without a
-        status text (probed; the emulator denied it before issue 13): arming then takes off."""
+        status text (probed): arming then takes off."""
         e, ap = self._e, self._e.autopilot
         if not ap.gps_ok:
             return int(M.MAV_RESULT_DENIED)
@@ -206,7 +206,7 @@ class CommandHandlers:
         ask for the mode change (MAV_DO_REPOSITION_FLAGS_CHANGE_MODE, else UNSUPPORTED); then
         ACCEPTED and Hold, disarmed too (nothing flies); armed on the ground it takes off to
         the target, right after a takeoff command (0.2 s, still on the ground) it climbs and
-        flies there. Before issue 13 the emulator denied it on the ground."""
+        flies there."""
         e, ap = self._e, self._e.autopilot
         flags = as_int(p[1])
         if not flags & M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE or flags & ~M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE:
@@ -236,8 +236,7 @@ class CommandHandlers:
         IN_PROGRESS (progress 255) at once and ACCEPTED PD_GRIPPER_TO (1 s) later; the state it
         is already in, ACCEPTED at once; the same action while it is under way,
         TEMPORARILY_REJECTED; the other one, CANCELLED to the first command's sender and
-        IN_PROGRESS. PX4 grabs at boot. No status text. (The emulator answered ACCEPTED at once
-        before issue 13.)"""
+        IN_PROGRESS. PX4 grabs at boot. No status text."""
         e = self._e
         action = as_int(p[1], -1)
         if action not in (M.GRIPPER_ACTION_RELEASE, M.GRIPPER_ACTION_GRAB):
@@ -359,7 +358,7 @@ class CommandHandlers:
         """PARAM_SET as PX4 v1.16 answers it (probed, benchmarks/probe_mavsdk_plugins.py): an
         unknown name or a type other than the parameter's own is not answered at all (PX4 only
         logs it on its console; MAVSDK retries 6 times and reports TIMEOUT after ~3 s), else the
-        value twice (recorded a: the second 11 ms later; before issue 13 both at once)."""
+        value twice (recorded a: the second 11 ms later)."""
         e = self._e
         name = self._param_id(msg.param_id)
         if name not in e.params:

@@ -36,7 +36,7 @@ PX4_ONBOARD_RATES_HZ: dict[str, float] = {
     "DISTANCE_SENSOR": 10.0,  # recorded 9.85 Hz; sent only with a rangefinder (config)
     "HIL_STATE_QUATERNION": 0.0,  # ground truth: not streamed until requested (as PX4 SIH)
     # MAVSDK's Telemetry imu, odometry, altitude, fixedwing_metrics, scaled_pressure and
-    # unix_epoch_time streams (recorded rates; probed: the emulator sent none before issue 13)
+    # unix_epoch_time streams (recorded rates)
     "HIGHRES_IMU": 50.0,
     "ODOMETRY": 30.0,
     "ALTITUDE": 10.0,
@@ -63,7 +63,7 @@ AUTO_APPROACH_GAIN_PER_S = 0.45
 """PX4 SIH publishes its distance sensor at 50 Hz: a faster stream request sends no more."""
 GPS_LOSS_FAILSAFE_DELAY_S = 1.0
 """How long after the GPS fix is lost the position counts as invalid (PX4 v1.16 has no
-COM_POS_FS_DELAY parameter any more: the emulator no longer reports one)."""
+COM_POS_FS_DELAY parameter: the emulator reports none)."""
 
 
 def distance_sensor_cm(true_down_m: float, cos_tilt: float, params: RangefinderParams,
@@ -172,8 +172,8 @@ class Traffic:
 def emulator_autopilot_params(cfg: EmulatorConfig, p: Callable[[str], float],
                               drain_per_s: float) -> AutopilotParams:
     """The shared autopilot model configured from the emulator's PX4 parameters (``p(name)``)
-    and config. Where the emulator behaved differently from the simulated vehicle before they
-    shared the model, the values keep the emulator's behaviour (see AutopilotParams)."""
+    and config. Where the emulator behaves differently from the simulated vehicle, the values
+    keep the emulator's behaviour (see AutopilotParams)."""
     low_bat = int(p("COM_LOW_BAT_ACT"))
     return AutopilotParams(
         home_altitude_amsl_m=cfg.home_altitude_amsl_m, cruise_speed_mps=p("MPC_XY_CRUISE"),

@@ -3,7 +3,7 @@
 It answers the way PX4 v1.16 answered MAVSDK 4.1 in the recorded SITL traffic
 (``../shared/data/px4_sitl_tlogs``): HEARTBEAT with PX4 custom modes at 1 Hz of emulator time
 and never on a change (so a mode change shows at the next HEARTBEAT, as on PX4; the config's
-``heartbeat_on_change`` restores the old instant reports), COMMAND_ACK for every command
+``heartbeat_on_change`` also sends one on every change), COMMAND_ACK for every command
 (DO_SET_MODE acknowledged twice),
 SYS_STATUS with sensor and pre-arm bits, HOME_POSITION, GLOBAL_POSITION_INT,
 LOCAL_POSITION_NED (relative to an EKF origin a few decimetres from home, as on PX4),

@@ -12,8 +12,8 @@ them with COM_RC_IN_MODE = 1 (stick input from MAVLink only; recorded h1-h3 of
   up to MPC_ACC_HOR against a drag that limits the speed to MPC_VEL_MANUAL; throttle (z, 500 =
   centred) through MPC_Z_MAN_EXPO a climb / sink rate up to MPC_Z_VEL_MAX_UP / _DN; inside
   PX4's MPC_HOLD_DZ (0.1) deadzone the vehicle brakes and holds. Probed (MAVSDK's
-  ManualControl, x = 0.5 for 3 s at 10 m): PX4 flew 1.5-2.3 m at up to 1.2 m/s; before issue 13
-  the emulator flew the stick straight as a velocity (5 m/s, 9.1 m).
+  ManualControl, x = 0.5 for 3 s at 10 m): PX4 flew 1.5-2.3 m at up to 1.2 m/s (a stick flown
+  straight as a velocity would give 5 m/s, 9.1 m).
 * A stream of MANUAL_CONTROL counts as manual input once it has been arriving for
   :data:`MANUAL_CONTROL_SETTLE_S` (probed: Position requested 3 ms after MAVSDK's first
   MANUAL_CONTROL was refused, TEMPORARILY_REJECTED).

@@ -8,9 +8,7 @@ Probed on PX4 v1.16 SITL (SIH quad; ``benchmarks/probe_mavsdk_plugins.py``): fro
 ``set_acceleration_ned``, ``set_position_global``, ``set_attitude`` and ``set_attitude_rate``
 is ACCEPTED and the HEARTBEAT shows OFFBOARD; the vehicle flies them (body 1 m/s forward with
 15 deg/s yaw speed: 50 deg of yaw in 4 s; -5 deg pitch at hover thrust: 0.5-0.8 m forward in
-2 s; 10 deg/s yaw rate: 15 deg). Before issue 13 the emulator counted only local-NED position
-and velocity setpoints: the others were refused with "Switching to Offboard is currently not
-available" (TEMPORARILY_REJECTED).
+2 s; 10 deg/s yaw rate: 15 deg).
 
 What PX4 accepts (its MAVLink receiver, v1.16):
 

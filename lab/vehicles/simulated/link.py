@@ -1,5 +1,5 @@
 """The simulated vehicle's telemetry link in virtual time: delay, duplicated and reordered
-messages, and the autopilot's clock (the injected link faults of issue 16).
+messages, and the autopilot's clock (the ``faults:`` section's link kinds).
 
 Without a fault the newest telemetry sample is delivered as it is. While one is injected
 :meth:`LinkTiming.deliver` hands the reader what a real link would:

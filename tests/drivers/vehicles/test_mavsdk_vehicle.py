@@ -251,11 +251,9 @@ async def test_gripper_waits_for_px4s_in_progress_then_accepted() -> None:
 async def test_driver_commands_the_autopilots_own_system_id() -> None:
     """A real aircraft may have another MAV_SYS_ID than 1 (a second PX4 SITL instance has 2:
     ``PX4_INSTANCE=1``): the driver's own COMMAND_LONGs (the ground-truth stream request,
-    DO_GRIPPER) name the connected autopilot's system id. Before, request_truth wrote target
-    system 1 into its fields; MAVSDK 4.1's MavlinkDirect put the bound system's id on the wire
-    anyway, so nothing failed (checked against PX4 instance 1 and here); the driver no longer
-    relies on that rewrite. Fails on d470359 only for the session's ``system_id`` and the
-    gripper."""
+    DO_GRIPPER) name the connected autopilot's system id in their fields, without relying on
+    MAVSDK 4.1's MavlinkDirect, which puts the bound system's id on the wire whatever the fields
+    say (checked against PX4 instance 1 and here)."""
     async with flying_pair(4.0, record=True, emulator={"sysid": 2}) as (emu, v, clock):
         assert v.session.system_id == 2
         truth = v.ground_truth()

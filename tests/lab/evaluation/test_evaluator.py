@@ -28,14 +28,14 @@ def _traj(points, *, v=(0.0, 0.0, 0.0), yaw=0.0, in_air=True):
 def test_success_and_errors_against_truth() -> None:
     cfg = load_config(check_plugins=False)
     target = (22.0, 1.5, -0.15)
-    good = grasp_position(target, 0.0, cfg.tool_point_m, ApproachConfig.of(cfg).grasp_distance_m)
+    good = grasp_position(target, 0.0, cfg.tool_point_m, ApproachConfig.of(cfg).grasp.distance_m)
     off = (good[0] + 0.024, good[1] - 0.032, good[2] - 0.01)  # 4 cm horizontal, 1 cm higher
     t0 = 1_000_000_000
     traj = _traj([(t0, (0, 0, 0)), (t0 + 10_000_000_000, off), (t0 + 20_000_000_000, off)])
     traj[-1] = VehicleState(t0 + 20_000_000_000, (0, 0, 0), (0, 0, 0), (1, 0, 0, 0))
     ev = evaluate(_Result(), traj, cfg, target, t0_ns=t0)
     assert math.isclose(ev.horizontal_error_m, 0.04, abs_tol=1e-9)
-    assert math.isclose(ev.grasp_distance_m, ApproachConfig.of(cfg).grasp_distance_m + 0.01, abs_tol=1e-9)
+    assert math.isclose(ev.grasp_distance_m, ApproachConfig.of(cfg).grasp.distance_m + 0.01, abs_tol=1e-9)
     assert ev.success and ev.landed and ev.violations == []
     far = [(t, (p[0] + 0.1, p[1], p[2])) for t, p in ((s.timestamp_ns, s.position_ned_m) for s in traj)]
     assert not evaluate(_Result(), _traj(far), cfg, target, t0_ns=t0).success

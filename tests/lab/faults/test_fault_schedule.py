@@ -1,6 +1,7 @@
 """Frame faults spoil the frames the camera plugin delivers in their window, and at least one
-however short the window (a 0.05 s truncated frame between two 0.1 s grabs used to hit none:
-14 of 43 campaign runs logged no ``frame_rejected``)."""
+however short the window (a 0.05 s truncated frame can fall between two 0.1 s grabs: spoiling
+only the frames grabbed inside it, such a fault would often spoil none and the run would log no
+``frame_rejected``)."""
 
 from __future__ import annotations
 

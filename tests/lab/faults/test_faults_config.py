@@ -68,7 +68,7 @@ def test_every_kind_has_an_outcome_and_a_valid_campaign_range() -> None:
         exp = expected_action(kind, cfg)
         assert exp == COMPLETE or exp in ("return", "land", "hold", "release"), (kind, exp)
         assert o.delay_s[0] <= o.delay_s[1] and 0 < o.duration_s[0] <= o.duration_s[1]
-    for kind in ("camera_drop", "slow_frame", "wind_gust", "corrupted_frame"):  # the issue's
+    for kind in ("camera_drop", "slow_frame", "wind_gust", "corrupted_frame"):  # tolerable by requirement
         assert OUTCOMES[kind].tolerable
     assert expected_action("link_loss", cfg) == cfg.safety.link_loss_action
 

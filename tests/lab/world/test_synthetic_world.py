@@ -28,9 +28,9 @@ def test_bad_world_params_name_their_path() -> None:
         registry.validate_params("worlds", "synthetic", {"noise_sigma": 99}, path="world.params")
 
 
-def test_campaign_draws_are_the_same_as_in_every_campaign_so_far() -> None:
-    """Seeds, distractor kinds and colours of the first 5 worlds of `campaign --seed 7`, as
-    drawn since the campaign exists: a change of draw order changes every campaign figure."""
+def test_campaign_draws_are_fixed_by_the_seed() -> None:
+    """Seeds, distractor kinds and colours of the first 5 worlds of `campaign --seed 7`: a
+    change of draw order would change every campaign figure the docs quote."""
     cfg = load_config()
     assert cfg.world is not None
     world = SyntheticWorld(SyntheticWorldConfig.model_validate(cfg.world.params))
@@ -48,8 +48,8 @@ def test_campaign_draws_are_the_same_as_in_every_campaign_so_far() -> None:
         SyntheticWorldConfig.model_validate(d)
 
 
-# The world keys of every campaign flown before the imaging effects existed (main at d470359).
-KEYS_BEFORE_IMAGING = {
+# The world keys drawn from the campaign's RNG (the imaging effects come from the world seed).
+KEYS_WITHOUT_IMAGING = {
     "seed", "target_north_m", "target_east_m", "target_yaw_deg", "ground_texture",
     "ground_image", "distractors", "light_gain", "noise_sigma", "wind_ne_mps",
     "mount_error_deg", "focal_error_fraction", "camera_time_offset_s", "frame_rate_hz"}
@@ -69,10 +69,11 @@ def _campaign_worlds(seed: int, runs: int, **kw: object) -> list[dict]:
     return out
 
 
-def test_imaging_draws_leave_the_earlier_draws_of_50_runs_unchanged() -> None:
+def test_imaging_draws_leave_the_other_draws_of_50_runs_unchanged() -> None:
     """The params of runs 0-49 of `campaign --seed 7` and `--seed 3`, apart from the imaging
-    keys, hash as on main before the effects (sha256 of their sorted JSON), and run 521 of
-    seed 3 (the fault campaign's regression world) is unchanged."""
+    keys, hash as they do with `--no-imaging-effects` (sha256 of their sorted JSON), and world
+    521 of seed 3 (the square box of tests/missions/test_candidate_rejection.py) is as
+    drawn there."""
     import hashlib
     import json
 
@@ -81,8 +82,8 @@ def test_imaging_draws_leave_the_earlier_draws_of_50_runs_unchanged() -> None:
     for seed, digest in expected.items():
         worlds = _campaign_worlds(seed, 50)
         assert all(set(SyntheticWorld.imaging_keys) <= set(w) for w in worlds)
-        old = [{k: v for k, v in w.items() if k in KEYS_BEFORE_IMAGING} for w in worlds]
-        assert all(set(o) == KEYS_BEFORE_IMAGING for o in old)
+        old = [{k: v for k, v in w.items() if k in KEYS_WITHOUT_IMAGING} for w in worlds]
+        assert all(set(o) == KEYS_WITHOUT_IMAGING for o in old)
         blob = json.dumps(old, sort_keys=True)
         assert hashlib.sha256(blob.encode()).hexdigest() == digest, f"seed {seed}"
     w521 = _campaign_worlds(3, 522)[521]
@@ -116,7 +117,7 @@ def test_imaging_effects_are_drawn_from_the_world_seed() -> None:
                                                 for k in SyntheticWorld.imaging_keys}
     plain = _campaign_worlds(7, 5, imaging_effects=False)
     for p, w in zip(plain, worlds):
-        assert {k: p[k] for k in KEYS_BEFORE_IMAGING} == {k: w[k] for k in KEYS_BEFORE_IMAGING}
+        assert {k: p[k] for k in KEYS_WITHOUT_IMAGING} == {k: w[k] for k in KEYS_WITHOUT_IMAGING}
         assert (p["white_balance_gains_bgr"], p["motion_blur"], p["bayer_pattern"],
                 p["jpeg_quality"]) == ((1.0, 1.0, 1.0), False, None, None)
 

@@ -194,8 +194,8 @@ def test_takeoff_late_in_the_auto_disarm_window_is_disarmed_unless_climbs_are_sp
     """COM_DISARM_LAND counts from "Landing detected" until "Takeoff detected" (PX4's
     ``_auto_disarm_landed``): a takeoff commanded 0.5 s into that window is detected in time and
     flies (recorded e, re-arm tests 1 and 2), one commanded 1.9 s in is cut by the auto-disarm
-    (issue 13's contract run on PX4: ``mode=TAKEOFF armed=False``) unless the profile spares
-    climbs."""
+    (the vehicle contract suite on PX4 SITL: ``mode=TAKEOFF armed=False``) unless the profile
+    spares climbs."""
     for spared, after_s, flies in ((False, 0.5, True), (False, 1.9, False), (True, 1.9, True)):
         b = Bench(auto_disarm_spares_climb=spared)
         b.hover(0.0, 0.0, 1.0)
@@ -288,9 +288,8 @@ def test_a_mode_chosen_during_a_failsafe_is_a_takeover_and_what_a_disarm_restore
         takeover: str) -> None:
     """PX4's FailsafeBase: an updated user-intended mode during a failsafe clears the action,
     so after the landing the mode is what the user chose last, not the mode the failsafe
-    interrupted. Found by the 50-run emulator link-loss campaign: offboard loss (link down,
-    Hold), then the mission's stop_offboard + return; after the RTL's disarm the emulator went
-    back to OFFBOARD, the mode it had been in before the failsafe."""
+    interrupted: after an offboard loss (link down, Hold), the mission's stop_offboard + return
+    and the RTL's disarm, the mode is not OFFBOARD again (the mode the failsafe interrupted)."""
     b = Bench(offboard_loss_timeout_s=1.0, offboard_loss_action=FailsafeAction.HOLD,
               disarm_restores_intended_mode=True, rtl_return_altitude_m=8.0)
     b.hover(10.0, 0.0, 5.0)

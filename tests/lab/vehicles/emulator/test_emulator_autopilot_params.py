@@ -1,7 +1,6 @@
 """The emulator holds and honours PX4's envelope parameters as PX4 v1.16 does, answers
 AUTOPILOT_VERSION as v1.16.0, and the preflight's guard sets, reads back and restores them
-through MAVSDK (issue 13: RTL_RETURN_ALT 30 m / RTL_DESCEND_ALT 10 m in the recorded
-airframe; the return height by the cone; the RTL climb at MPC_Z_V_AUTO_UP)."""
+through MAVSDK (RTL_RETURN_ALT 30 m / RTL_DESCEND_ALT 10 m in the recorded airframe; the return height by the cone; the RTL climb at MPC_Z_V_AUTO_UP)."""
 
 from __future__ import annotations
 

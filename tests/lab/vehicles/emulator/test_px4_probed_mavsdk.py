@@ -1,4 +1,4 @@
-"""A MAVSDK client that flies PX4 flies the emulator the same way (issue 13).
+"""A MAVSDK client that flies PX4 flies the emulator the same way.
 
 Each test drives the in-process emulator with an ordinary MAVSDK 4.1 client program (the
 blocking API, plugins built on the system: :mod:`plain_mavsdk`) and asserts what PX4 v1.16 SITL
@@ -8,8 +8,7 @@ answered the same calls. PX4's answers were measured with
     python benchmarks/probe_mavsdk_plugins.py --url udpin://0.0.0.0:14541 --tap --out px4.json
 
 (the same probe against ``eaglemission sitl-vehicle`` gives the emulator's; docs/vehicles.md,
-"MAVSDK plugins as PX4 answers them", has the table). Every test failed on the emulator before
-this change (d470359) unless its docstring says otherwise.
+"MAVSDK plugins as PX4 answers them", has the table).
 """
 
 from __future__ import annotations
@@ -70,9 +69,7 @@ def test_offboard_every_setpoint_type_starts_and_flies() -> None:
     SUCCESS and the HEARTBEAT shows OFFBOARD; it flies them: body velocity 1 m/s forward with
     15 deg/s yaw speed turned 49-50 deg in 4 s; -5 deg pitch at hover thrust went 0.5-0.9 m
     forward in 2 s; a 10 deg/s yaw rate turned 15 deg in 2 s; 0.5 m/s^2 north moved 0.4-1.0 m in
-    3 s; a global position 3 m south moved 3.0-3.8 m south. The emulator refused the body,
-    acceleration, global, attitude and attitude-rate kinds with "Switching to Offboard is currently
-    not available" (COMMAND_DENIED) before."""
+    3 s; a global position 3 m south moved 3.0-3.8 m south."""
     with plain_client(SPEEDUP) as c:
         off = c.m["offboard"]
         hover = c.emu.param("MPC_THR_HOVER") if "MPC_THR_HOVER" in c.emu.params else 0.5
@@ -109,8 +106,7 @@ def test_unsupported_offboard_frame_is_ignored_with_px4s_text() -> None:
     """PX4's MAVLink receiver takes SET_POSITION_TARGET_LOCAL_NED in MAV_FRAME_LOCAL_NED and
     MAV_FRAME_BODY_NED only; another frame is no offboard signal and is reported (STATUSTEXT
     CRITICAL "SET_POSITION_TARGET_LOCAL_NED coordinate frame N unsupported"; PX4 v1.16's
-    receiver, not probed). The emulator dropped such a setpoint silently before (passes on the
-    old emulator only for the signal, not the text)."""
+    receiver, not probed)."""
     with plain_client(SPEEDUP) as c:
         mav = M.MAVLink(None, srcSystem=245, srcComponent=190)
         c.emu.feed(M.MAVLink_set_position_target_local_ned_message(
@@ -198,8 +194,7 @@ def test_do_orbit_flies_a_circle_in_positions_orbit_sub_mode() -> None:
     (ORBIT), base_mode 0x91; MAVSDK reports POSCTL; half a circle (10.1-10.5 m north of the
     start) in 12 s at up to 1.72-1.75 m/s, the nose to the centre (yaw -174 to 178 deg), at the
     same altitude. Disarmed it is ACCEPTED too (Position/ORBIT, base_mode 0x11) and arming is then
-    refused: TEMPORARILY_REJECTED, "Arming denied: Resolve system health failures first". The
-    emulator answered UNSUPPORTED before."""
+    refused: TEMPORARILY_REJECTED, "Arming denied: Resolve system health failures first"."""
     with plain_client(SPEEDUP) as c:
         act = c.m["action"]
         c.take_off(8.0)
@@ -247,8 +242,7 @@ def test_gripper_answers_in_progress_then_accepted_like_px4() -> None:
     IN_PROGRESS, ACCEPTED ~1.05 s later; grab twice at once: TEMPORARILY_REJECTED for the second.
     MAVSDK's MavlinkDirect.send_command waits through IN_PROGRESS for the final ACCEPTED. (MAVSDK's
     Gripper plugin returns UNKNOWN at the IN_PROGRESS and calls back again at the final ack,
-    which crashed the probe: the driver no longer uses it.) The emulator answered ACCEPTED at
-    once, every time, before."""
+    which crashes a client: the driver does not use it.)"""
     with plain_client(SPEEDUP) as c:
         mav = M.MAVLink(None, srcSystem=246, srcComponent=190)
 
@@ -299,8 +293,7 @@ def test_reposition_right_after_takeoff_and_on_the_ground_is_accepted() -> None:
     on the ground) SUCCESS, and it climbs and flies there (8 m north, 8 m up, in 15 s); disarmed,
     SUCCESS and Hold (nothing moves); armed on the ground, SUCCESS and it takes off to the target
     ("Takeoff detected" 0.5 s later). A DO_REPOSITION without param2's change-mode flag is
-    UNSUPPORTED (PX4's Commander; MAVSDK always sets it). The emulator denied all three on the
-    ground (COMMAND_DENIED) before."""
+    UNSUPPORTED (PX4's Commander; MAVSDK always sets it)."""
     with plain_client(SPEEDUP) as c:
         pos = c.telemetry.position()
         amsl = pos.absolute_altitude_m - pos.relative_altitude_m
@@ -362,8 +355,7 @@ def _text(raw: object) -> str:
 def test_land_return_and_takeoff_while_disarmed_are_selected_like_px4() -> None:
     """Disarmed on the ground, PX4 v1.16 (probed): ``Action.land()`` SUCCESS, Land, "Landing
     at current position"; ``return_to_launch()`` SUCCESS, Return, no status text;
-    ``takeoff()`` SUCCESS, Takeoff, no status text; nothing moves. The emulator refused all three
-    (DENIED / TEMPORARILY_REJECTED, "Takeoff denied! Please arm first") before."""
+    ``takeoff()`` SUCCESS, Takeoff, no status text; nothing moves."""
     with plain_client(SPEEDUP) as c:
         t0 = time.monotonic()
         for call, mode in ((c.action.land, FlightMode.LAND),
@@ -379,8 +371,7 @@ def test_parameters_are_px4_v1_16s_sih_quad_set() -> None:
     """``Param.get_all_params`` on PX4 v1.16 SIH (probed): 904 parameters (281 int, 623 float),
     after PX4's _HASH_CHECK (UINT32, index 65535), with the airframe's values (RTL_RETURN_ALT 30,
     COM_LOW_BAT_ACT 3, MPC_THR_HOVER 0.5, COM_DL_LOSS_T an INT32, no COM_POS_FS_DELAY);
-    MAV_SYS_ID is the autopilot's system id. The emulator had 38 (COM_DL_LOSS_T a float, a
-    COM_POS_FS_DELAY PX4 v1.16 does not have, no MAV_SYS_ID)."""
+    MAV_SYS_ID is the autopilot's system id."""
     with plain_client(SPEEDUP) as c:
         t0 = time.monotonic()
         allp = c.param.get_all_params()
@@ -403,10 +394,9 @@ def test_parameter_of_another_type_or_unknown_name_is_not_answered_like_px4() ->
     """PARAM_SET of a float parameter as INT32 (``Param.set_param_int("MPC_XY_CRUISE", 4)``):
     PX4 v1.16 ignores it (console "param types mismatch") and keeps the value; MAVSDK retries
     6 times over 3 s and returns TIMEOUT (or WRONG_TYPE when a late PARAM_VALUE of the name
-    arrives meanwhile; probed both). The emulator set the bytes as the float's value and
-    answered. An unknown name is not answered either (probed: TIMEOUT after 3.0 s for get and
-    set, int and float, on PX4 and on the emulator before and after: not a difference). PX4
-    answers a good PARAM_SET twice, the second 11 ms later (recorded a)."""
+    arrives meanwhile; probed both). An unknown name is not answered either (probed: TIMEOUT
+    after 3.0 s for get and set, int and float). PX4 answers a good PARAM_SET twice, the second
+    11 ms later (recorded a)."""
     with plain_client(SPEEDUP) as c:
         pm = c.m["param"]
         with pytest.raises(pm.ParamError) as err:

@@ -15,7 +15,7 @@ Facts (README of the recordings, "Behaviour worth reproducing (d-i)"):
   time_usec against the receipt times); the emulator's ``clock_rate``.
 * PX4's auto-disarm timer keeps running through a takeoff PX4 has not detected yet
   (Commander's ``_auto_disarm_landed`` hysteresis on ``landed``): a takeoff commanded late in
-  the window is disarmed mid-takeoff -- what issue 13's contract run on PX4 showed
+  the window is disarmed mid-takeoff -- what the vehicle contract suite on PX4 SITL shows
   (``mode=TAKEOFF armed=False``) and why the driver re-arms a landed vehicle.
 """
 
@@ -348,8 +348,9 @@ def emu_armed_hb(gcs: Gcs) -> bool:
 
 def test_fact_auto_disarm_also_cuts_a_takeoff_not_detected_in_time(px4_tlogs: Path) -> None:
     """PX4 keeps its COM_DISARM_LAND timer through a takeoff until "Takeoff detected": a
-    takeoff sent late in the window, armed in LAND, is disarmed in TAKEOFF (issue 13's contract
-    run on PX4: ``mode=TAKEOFF armed=False``; recorded e: disarm 2.02 s after "Landing detected")."""
+    takeoff sent late in the window, armed in LAND, is disarmed in TAKEOFF (the vehicle contract
+    suite on PX4 SITL: ``mode=TAKEOFF armed=False``; recorded e: disarm 2.02 s after "Landing
+    detected")."""
     assert recorded_landings(px4_tlogs)[0]["disarm"] > 0
     with Gcs(make_emulator()) as gcs:
         _, detected = gcs.fly_up_and_land()

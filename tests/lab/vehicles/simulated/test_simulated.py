@@ -483,10 +483,10 @@ async def test_takeoff_duration_same_order_as_recorded_px4(px4_tlogs: object) ->
 
 
 # ---------------------------------------------------------------------------------------------
-# RETURN_TO_LAUNCH / LAND right after other commands (regression: a hold or setpoint still in
-# its command latency used to be applied *after* the RTL's climb and leave the vehicle hovering
-# in RTL for ever; the mission's final action sends stop_offboard() then return_to_launch() at
-# the same instant)
+# RETURN_TO_LAUNCH / LAND right after other commands (a hold or setpoint still in its command
+# latency must not be applied *after* the RTL's climb: it would leave the vehicle hovering in
+# RTL for ever; the mission's final action sends stop_offboard() then return_to_launch() at the
+# same instant)
 # ---------------------------------------------------------------------------------------------
 RTL_ALT_M = 10.0
 
