@@ -246,7 +246,7 @@ def impurities(guard: Callable[[Snapshot], object], seed: int, n: int = 300) -> 
 
 def _failsafe_in(state: MissionState) -> Callable[[Snapshot], object]:
     cfg = load_config(check_plugins=False)
-    params = ApproachConfig(on_target_lost="land")
+    params = ActionsConfig(on_target_lost="land")
 
     def check(s: Snapshot) -> object:
         return failsafe(state, s, cfg.safety, params)
