@@ -54,7 +54,7 @@ from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.detectors.inputs import frame_time_ns  # noqa: E402
+from eaglemission.perception.inputs import frame_time_ns  # noqa: E402
 from eaglemission.lab.bench.boxes import (  # noqa: E402
     BoxScores,
     box_from_mask,

@@ -22,6 +22,7 @@ import numpy as np
 from eaglemission.missions.approach import MissionState
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
+from eaglemission.missions.perception import Tools
 from eaglemission.missions.result import MissionResult
 from eaglemission.missions.runner import MissionRunner
 
@@ -149,7 +150,7 @@ class ApproachMission:
     @staticmethod
     def recorded_rate_hz(config: ApproachConfig) -> float:
         """Frames a camera records per second, at most: its loop's processing rate."""
-        return float(config.process_rate_hz)
+        return float(config.perception.process_rate_hz)
 
     @staticmethod
     def max_flight_s(config: ApproachConfig) -> float:
@@ -158,7 +159,7 @@ class ApproachMission:
         t = config.timeouts
         return float(t.preflight_s + t.takeoff_s + t.cruise_s + t.coarse_approach_s
                      + t.fine_approach_s + t.grasp_ready_s + t.target_lost_s
-                     + config.settle_timeout_s)
+                     + t.settle_s)
 
     def __init__(self, config: ApproachConfig | None = None, *, parts: FlightParts,
                  hooks: MissionHooks | None = None, **_context: Any) -> None:
@@ -213,10 +214,10 @@ class ApproachMission:
         wall0 = time.perf_counter()
         t0_ns = clock.now_ns()
         models = {c: cam.model for c, cam in p.cameras.items()}
+        tools = {c: Tools(p.detectors[c], p.coarse, p.fine, p.fitter, p.appearance,
+                          p.keepers.get(c)) for c in p.cameras}
         runner = MissionRunner(cfg, self.config, vehicle=p.vehicle, cameras=dict(p.cameras),
-                               models=models, detectors=dict(p.detectors), coarse=p.coarse,
-                               fine=p.fine, fitter=p.fitter, appearance=p.appearance,
-                               clock=clock, mission_log=mlog,
+                               models=models, tools=tools, clock=clock, mission_log=mlog,
                                grasp_callback=h.grasp_callback, on_frame=h.on_frame,
                                on_telemetry=on_telemetry, record_all=h.record_all,
                                on_processed=None if h.recorder is None else _to_recorder(

@@ -3,12 +3,15 @@ docs/architecture.md lists, "Perception"). Pure given its inputs; it runs in a w
 returns an immutable :class:`Measurement`, the only thing that crosses back to the event loop.
 
 1. **detect** (:func:`detect`): the camera's detector (``Detector``; with an example image of
-   the target, followed by the appearance prior: :mod:`eaglemission.perception.prior`); a map
-   that is not finite is an anomaly and gives no detections.
-2. **choose the target** (:func:`target_candidates`): the plausible detection nearest the
-   predicted pixel (its size from the camera's pose, the target's colour), and at close range
-   the region of the target's colour: the candidates in order of preference, each with where it
-   came from.
+   the target, followed by the appearance prior: :mod:`eaglemission.perception.prior`), on
+   every frame while searching, every few frames while a target is kept (every frame at close
+   range); a map that is not finite is an anomaly and gives no detections.
+2. **choose the target**: the detector's candidate (:func:`choose_detection`: the plausible
+   detection nearest the predicted pixel, its size from the camera's pose, the target's
+   colour); once confirmed, the keeper keeps it between the detector's frames with a tracker
+   (:mod:`eaglemission.perception.keep`); at close range the region of the target's colour
+   (:func:`target_candidates`): the candidates in order of preference, each with where it came
+   from.
 3. **measure its pose** (:meth:`Perception.measure`): the state's estimator (``Estimator``: fine,
    or a down-weighted coarse FALLBACK when the fine one refuses), then the fit of the target's box
    on the plane of its top (``PlaneFitter``, with the apparent-size range at close range; none
@@ -41,6 +44,7 @@ from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter
 from eaglemission.perception.appearance import TargetAppearance
+from eaglemission.perception.keep import TargetKeeper
 from eaglemission.recording.foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
@@ -104,6 +108,9 @@ class Tools:
     fine: Estimator
     fitter: PlaneFitter | None = None
     appearance: TargetAppearance | None = None
+    keeper: TargetKeeper | None = None
+    """Keeps the confirmed target between the detector's frames (None: the detector on every
+    frame alone); its state is this camera's, touched only by its perception."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +127,8 @@ class Request:
     close_range: bool
     fit_hint: FitHint | None
     plane: PlaneState
+    keep_epoch: int = 0
+    """Changes when the mission drops its target (lost, rejected): the keeper lets it go."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +156,12 @@ class Measurement:
     saliency_thumb: NDArray[np.uint8] | None = None
     """The detector's map, 160 px wide, 0..255 (recordings: ``/camera/<id>/saliency``; None
     when nothing records it)."""
+    detector_ran: bool = True
+    """The detector ran on this frame (while keeping, it re-checks every few frames)."""
+    kept: bool = False
+    """``detection`` is the keeper's confirmed target (else a candidate, or nothing)."""
+    from_tracker: bool = False
+    """``detection`` is the tracker's box (the detector did not run, or had nothing on it)."""
 
     @property
     def fine_measurement(self) -> bool:
@@ -201,11 +216,13 @@ def plausible_size(det: Detection, model: CameraModel, state: VehicleState | Non
 def select_detection(result: DetectionResult, predicted_px: tuple[float, float] | None,
                      width_px: int, height_px: int, border_px: float, gate_px: float,
                      plausible: Callable[[Detection], bool] | None = None,
-                     allow_cut: bool = False) -> Detection | None:
+                     allow_cut: bool = False,
+                     match: Callable[[Detection], float] | None = None,
+                     match_min: float = 0.0) -> Detection | None:
     """The detection to use: the one nearest the predicted target pixel when there is a
-    prediction (within ``gate_px``), else the best-ranked; truncated ones (unless
-    ``allow_cut``) and (with ``plausible``, a predicate) ones of an impossible size are
-    skipped."""
+    prediction (within ``gate_px``), else the one ``match`` scores highest when that score
+    reaches ``match_min``, else the best-ranked; truncated ones (unless ``allow_cut``) and
+    (with ``plausible``, a predicate) ones of an impossible size are skipped."""
     dets = [d for d in result.detections
             if (allow_cut or not touches_border(d, width_px, height_px, border_px))
             and (plausible is None or plausible(d))]
@@ -216,6 +233,11 @@ def select_detection(result: DetectionResult, predicted_px: tuple[float, float] 
                 for d in dets]
         i = int(np.argmin(dist))
         return dets[i] if dist[i] <= gate_px else None
+    if match is not None:
+        scores = [match(d) for d in dets]
+        i = int(np.argmax(scores))
+        if scores[i] >= match_min:
+            return dets[i]
     return dets[0]
 
 
@@ -240,6 +262,12 @@ hint)."""
 NOT_MEASURED: Measured = (None, None, False, None, None)
 
 
+def not_run(frame: Frame) -> DetectionResult:
+    """A frame the detector did not see (the keeper's tracker covers it): no map, nothing."""
+    return DetectionResult(np.zeros((0, 0), np.float32), (), frame.timestamp_ns,
+                           frame.camera_id, frame.seq)
+
+
 def detect(detector: Detector, frame: Frame) -> tuple[DetectionResult, str | None]:
     """Stage 1: the detector's result, and ``"nan_map"`` when its map or a region is not finite
     (those detections dropped: a detector fault must not steer the vehicle)."""
@@ -252,25 +280,16 @@ def detect(detector: Detector, frame: Frame) -> tuple[DetectionResult, str | Non
     return result, None
 
 
-def target_candidates(result: DetectionResult, req: Request,
-                      appearance: TargetAppearance | None, p: PerceptionConfig,
-                      target: TargetConfig, has_fitter: bool
-                      ) -> Iterator[tuple[Detection | None, bool]]:
-    """Stage 2: the candidates for the target in this frame, best first, each with whether it
-    is the target colour's region (True) or the detector's (False); the pose stage measures the
-    first it can.
-
-    - The detector's: the plausible detection nearest the predicted pixel (``gate_px``: a
-      quarter of the image), plausible = of the size the camera's pose expects
-      (``size_ratio_range``) and, when the target's colour is known (``target.color_bgr``), of
-      the target's colour; cut by the image border only at close range with a plane fit that
-      has the heading of an earlier complete view.
-    - At close range, when the target's colour is known, the region of the target's colour near
-      the predicted pixel: first when the detector has none, or when the fine estimator is
-      asked and the regions agree (:func:`regions_agree`: the colour region follows the
-      target's edges, a saliency threshold need not); otherwise after the detector's, when that
-      one cannot be measured.
-    """
+def choose_detection(result: DetectionResult, req: Request,
+                     appearance: TargetAppearance | None, p: PerceptionConfig,
+                     target: TargetConfig, has_fitter: bool) -> Detection | None:
+    """Stage 2a, the detector's candidate: the plausible detection nearest the predicted pixel
+    (``gate_px``: a quarter of the image); plausible = of the size the camera's pose expects
+    (``size_ratio_range``) and, when the target's colour is known (``target.color_bgr``), of
+    the target's colour; cut by the image border only at close range with a plane fit that
+    has the heading of an earlier complete view. With no prediction: the one where the example
+    image itself matches best (:meth:`TargetAppearance.example_match`, at least
+    ``appearance.example.match_min_ncc``), else the best-ranked."""
     frame, model, state = req.frame, req.model, req.state
     colour = appearance if appearance is not None and appearance.has_colour else None
     gate_px = 0.25 * max(model.width_px, model.height_px)
@@ -280,8 +299,35 @@ def target_candidates(result: DetectionResult, req: Request,
                 and (colour is None or colour.colour_matches(frame, d)))
 
     allow_cut = req.close_range and has_fitter and req.fit_hint is not None
-    det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
-                           p.image_border_px, gate_px, plausible, allow_cut=allow_cut)
+    match = None
+    min_ncc = None if appearance is None else appearance.example_config.match_min_ncc
+    if req.predicted_px is None and min_ncc is not None and appearance is not None \
+            and appearance.image is not None:
+        image = np.asarray(frame.image)
+
+        def match(d: Detection) -> float:
+            return appearance.example_match(image, d.center_px)
+
+    return select_detection(result, req.predicted_px, model.width_px, model.height_px,
+                            p.image_border_px, gate_px, plausible, allow_cut=allow_cut,
+                            match=match, match_min=min_ncc or 0.0)
+
+
+def target_candidates(det: Detection | None, req: Request,
+                      appearance: TargetAppearance | None
+                      ) -> Iterator[tuple[Detection | None, bool]]:
+    """Stage 2b: the candidates for the target in this frame, best first, each with whether it
+    is the target colour's region (True) or not (False); the pose stage measures the first it
+    can. ``det``: the detector's candidate, or the kept target.
+
+    At close range, when the target's colour is known, the region of the target's colour near
+    the predicted pixel comes first when there is no other candidate, or when the fine
+    estimator is asked and the regions agree (:func:`regions_agree`: the colour region follows
+    the target's edges, a saliency threshold need not); otherwise after ``det``, when that one
+    cannot be measured.
+    """
+    frame = req.frame
+    colour = appearance if appearance is not None and appearance.has_colour else None
     near = req.predicted_px
     if not (req.close_range and colour is not None and near is not None
             and bool(np.isfinite(near).all())):
@@ -317,14 +363,28 @@ class Perception:
         #: make each map's :attr:`Measurement.saliency_thumb` (~0.7 ms per 1280x960 frame,
         #: on the frame-to-setpoint path): only for a recording
         self.thumbnails = thumbnails
+        self._epochs: dict[str, int] = {}
+        """Per camera, the request's ``keep_epoch`` its keeper last saw."""
 
     def perceive(self, req: Request, tools: Tools) -> Measurement:
         t0 = time.perf_counter()
         frame, state = req.frame, req.state
-        result, anomaly = detect(tools.detector, frame)
+        keeper = tools.keeper
+        if keeper is not None and req.keep_epoch != self._epochs.get(frame.camera_id, 0):
+            keeper.reset()  # the mission dropped its target: so does the keeper
+            self._epochs[frame.camera_id] = req.keep_epoch
+        ran = keeper is None or keeper.detector_due(req.close_range)
+        result, anomaly = detect(tools.detector, frame) if ran else (not_run(frame), None)
+        if keeper is not None and keeper.box is not None and req.predicted_px is None:
+            u0, v0, u1, v1 = keeper.box  # the kept target is where to look
+            req = replace(req, predicted_px=((u0 + u1) / 2, (v0 + v1) / 2))
+        det = choose_detection(result, req, tools.appearance, self.p, self.target,
+                               tools.fitter is not None)
+        kept = None if keeper is None else keeper.step(frame, det, ran)
+        if kept is not None:
+            det = kept.detection
         chosen: tuple[Detection | None, bool, Measured] | None = None
-        for cand, colour in target_candidates(result, req, tools.appearance, self.p,
-                                              self.target, tools.fitter is not None):
+        for cand, colour in target_candidates(det, req, tools.appearance):
             measured = self.measure(cand, req, tools, colour)
             if chosen is None or measured[0] is not None:
                 chosen = (cand, colour, measured)  # the first, unless a later one measures
@@ -336,8 +396,10 @@ class Perception:
                            len(result.detections), from_colour,
                            est, prov, refined, failure, hint,
                            (time.perf_counter() - t0) * 1e3, anomaly,
-                           None if anomaly or not self.thumbnails
-                           else saliency_thumbnail(result.saliency))
+                           None if anomaly or not self.thumbnails or not ran
+                           else saliency_thumbnail(result.saliency),
+                           ran, kept is not None and det is kept.detection,
+                           kept is not None and kept.from_tracker)
 
     def measure(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
                 ) -> Measured:

@@ -61,9 +61,8 @@ from eaglemission.clock import Clock, run_blocking
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
 from eaglemission.geometry.geofence import inside_geofence
-from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Vehicle
+from eaglemission.interfaces import Camera, Vehicle
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
-from eaglemission.perception.appearance import TargetAppearance
 from eaglemission.recording.provenance import config_record
 from eaglemission.safety.autopilot_guard import AutopilotGuard
 from eaglemission.safety.envelope import SafeVehicle
@@ -90,8 +89,9 @@ class MissionRunner:
     vehicle : a connected Vehicle; wrapped in :class:`~eaglemission.safety.envelope.SafeVehicle` here
         unless it already is one, so no plugin can bypass the envelope
     cameras : ``{"wide": Camera, "narrow": Camera}``; models : their (nominal) models
-    detectors : one detector per camera (their temporal state is per camera)
-    coarse, fine : estimators; fitter : the plane fitter; appearance : the target's appearance
+    tools : per camera, what its perception uses (:class:`~.perception.Tools`: the camera's
+        detector and keeper, whose state is the camera's, the estimators, the plane fitter, the
+        target's appearance)
     clock : the mission clock; mission_log : JSON-lines log
     grasp_callback : awaited in GRASP_READY when ``grasp.action == "callback"``
     on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
@@ -101,9 +101,7 @@ class MissionRunner:
 
     def __init__(self, cfg: MissionFile, params: ApproachConfig, *, vehicle: Vehicle,
                  cameras: Mapping[str, Camera], models: Mapping[str, CameraModel],
-                 detectors: Mapping[str, Detector], coarse: Estimator, fine: Estimator,
-                 clock: Clock, mission_log: MissionLog, fitter: PlaneFitter | None = None,
-                 appearance: TargetAppearance | None = None,
+                 tools: Mapping[str, Tools], clock: Clock, mission_log: MissionLog,
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
                  on_frame: Callable[[Frame], None] | None = None,
                  on_telemetry: Callable[[VehicleState], None] | None = None, record_all: bool = False,
@@ -114,7 +112,7 @@ class MissionRunner:
         self.vehicle: SafeVehicle = (vehicle if isinstance(vehicle, SafeVehicle)
                                      else SafeVehicle(vehicle, cfg.safety, clock=clock))
         self.cameras, self.models = dict(cameras), dict(models)
-        self.tools = {c: Tools(detectors[c], coarse, fine, fitter, appearance) for c in cameras}
+        self.tools = dict(tools)
         self.clock, self.log = clock, mission_log
         self.on_frame, self.on_telemetry, self.on_state = on_frame, on_telemetry, on_state
         self.record_all, self.on_processed = record_all, on_processed or (lambda _f, _t: None)
@@ -289,7 +287,7 @@ class MissionRunner:
         serves = {"coarse": CAMERA_WIDE, "fine": self.track.choice.fine_camera}  # which camera
         role = pol.estimator if pol.estimator and serves[pol.estimator] == cam_id else None
         return Request(frame, model, state, role, predicted, pol.close_range, self.track.fit_hint,
-                       self.track.plane_state(frame.timestamp_ns))
+                       self.track.plane_state(frame.timestamp_ns), self.track.drops)
 
     def _apply(self, meas: Measurement, wall: float) -> None:
         """One processed frame, on the loop thread (:meth:`TargetTracking.apply`)."""

@@ -87,6 +87,9 @@ class TargetTracking:
         """Fitted headings of the tracked candidate's complete close-range views."""
         self.silhouettes: list[float] = []
         """Their silhouette IoUs (:func:`~eaglemission.estimators.top_plane.silhouette_iou`)."""
+        self.drops = 0
+        """How often the mission dropped its target (lost, rejected): perception's keepers let
+        it go when this changes."""
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -112,6 +115,7 @@ class TargetTracking:
         Returns the place, None when the target was never tracked."""
         self.headings_deg = []
         self.silhouettes = []
+        self.drops += 1
         if self.last_target is None:
             self.last_place = None
             return None
@@ -194,6 +198,7 @@ class TargetTracking:
         self.headings_deg = []
         self.silhouettes = []
         self.filter.reset()
+        self.drops += 1
         self.log.write("event", source="mission",
                        text=f"candidate near north {place[0]:.1f} m east {place[1]:.1f} m "
                        f"rejected: {why}")
@@ -222,7 +227,8 @@ class TargetTracking:
                        corners_px=None if det is None else det.corners_px,
                        score=None if det is None else det.score,
                        perception_ms=round(meas.perception_ms, 3),
-                       colour_track=meas.colour_tracked)
+                       colour_track=meas.colour_tracked, detector_ran=meas.detector_ran,
+                       kept=meas.kept, from_tracker=meas.from_tracker)
         if cam_id == CAMERA_NARROW:
             self.choice.narrow_result(meas.fine_measurement or meas.role is None, now_ns)
         est = meas.estimate

@@ -37,10 +37,12 @@ from eaglemission.interfaces import (
     Judge,
     PlaneFitter,
     Section,
+    Tracker,
     World,
 )
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.perception.appearance import TargetAppearance
+from eaglemission.perception.keep import TargetKeeper
 from eaglemission.recording.vehicle_tap import VehicleTap
 from eaglemission.safety.autopilot_guard import AutopilotGuard
 from eaglemission.safety.envelope import SafeVehicle
@@ -137,6 +139,7 @@ class Assembly:
     truth: GroundTruth | None = None
     fitter: PlaneFitter | None = None
     appearance: TargetAppearance | None = None
+    keepers: dict[str, TargetKeeper] = field(default_factory=dict)
     guard: AutopilotGuard | None = None
     sections: list[Section] = field(default_factory=list)
     """The section plugins of the mission file's extra sections (``faults``), attached."""
@@ -145,6 +148,7 @@ class Assembly:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
                            cameras=self.cameras, detectors=self.detectors, coarse=self.coarse,
                            fine=self.fine, fitter=self.fitter, appearance=self.appearance,
+                           keepers=self.keepers,
                            judge=self.judge(), realtime=realtime, autopilot_guard=self.guard)
 
     def judge(self) -> Judge | None:
@@ -175,6 +179,14 @@ def build_detector(cfg: MissionFile, camera_id: str,
                              camera_id=camera_id)
     return detector if appearance is None else appearance.with_prior(detector,
                                                                        cfg.appearance.prior)
+
+
+def build_keeper(cfg: MissionFile, camera_id: str) -> TargetKeeper:
+    """One camera's keeper: the ``tracker`` section's plugin and its ``keep`` settings."""
+    assert cfg.tracker is not None
+    tracker: Tracker = registry.load("trackers", cfg.tracker.type, cfg.tracker.params,
+                                     camera_id=camera_id)
+    return TargetKeeper(tracker, cfg.tracker.keep)
 
 
 def detector_params(cfg: MissionFile, camera_id: str) -> dict[str, Any]:
@@ -258,6 +270,7 @@ def assemble(cfg: MissionFile, clock: Clock, *,
             shared=shared, pose_source=pose)
     appearance = target_appearance(cfg)
     detectors = {cid: build_detector(cfg, cid, appearance) for cid in CAMERAS}
+    keepers = {cid: build_keeper(cfg, cid) for cid in CAMERAS} if cfg.tracker else {}
     coarse = registry.load("estimators", cfg.estimators.coarse.type,
                            cfg.estimators.coarse.params, target=cfg.target)
     fine = registry.load("estimators", cfg.estimators.fine.type, cfg.estimators.fine.params,
@@ -266,7 +279,8 @@ def assemble(cfg: MissionFile, clock: Clock, *,
     fitter = None if fs is None else registry.load("fitters", fs.type, fs.params,
                                                    target=cfg.target)
     asm = Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
-                   fitter=fitter, appearance=appearance, sections=sections)
+                   fitter=fitter, appearance=appearance, keepers=keepers,
+                   sections=sections)
     for section in sections:
         section.attach(asm)  # e.g. wraps the parts injected faults live in
     return asm

@@ -18,6 +18,7 @@ from eaglemission.interfaces.vehicle import Vehicle
 if TYPE_CHECKING:
     from eaglemission.config import MissionFile
     from eaglemission.perception.appearance import TargetAppearance
+    from eaglemission.perception.keep import TargetKeeper
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,9 @@ class FlightParts:
     fitter: PlaneFitter | None = None
     appearance: TargetAppearance | None = None
     """The target's appearance, modelled once (None: nothing known of it)."""
+    keepers: Mapping[str, TargetKeeper] = field(default_factory=dict)
+    """Per camera, what keeps the confirmed target between the detector's frames (empty: the
+    detector on every frame alone)."""
     judge: Judge | None = None
     realtime: bool = False
     autopilot_guard: Any = None

@@ -14,8 +14,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from eaglemission.detectors.cli_params import UsageError, build_spec, parse_detector_specs
-from eaglemission.detectors.inputs import read_target_image
+from eaglemission.commands.params import UsageError, build_spec, parse_detector_specs
+from eaglemission.perception.inputs import read_target_image
 from eaglemission.lab.bench.data import find_sequences, first_frame_crop
 from eaglemission.lab.bench.report import (
     markdown_table,
@@ -59,6 +59,12 @@ def _bench_args(p: argparse.ArgumentParser) -> None:
                    help="do not score the first FRACTION of each sequence's frames (default 0.1 "
                         "with --target-image first-frame, else 0); give 0.1 to a run without "
                         "the image to score the same frames")
+    p.add_argument("--mission", type=Path, default=None, metavar="CONFIG",
+                   help="box sequences: score the mission's perception (acquire and keep) of "
+                        "this mission file, acquisition alone, keeping from the confirmation "
+                        "on, without the example image, SR + regions, and CSRT and KCF "
+                        "started on the first box; the example image is each sequence's first "
+                        "box's crop (docs/detectors.md, \"Acquire and keep\")")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -75,6 +81,8 @@ def run_bench(args: argparse.Namespace) -> int:
 
     if not (args.fps > 0 and math.isfinite(args.fps)):
         raise UsageError(f"--fps: must be > 0, got {args.fps}")
+    if args.mission is not None:
+        return run_perception_bench(args)
     first_frame = args.target_image == "first-frame"
     head = args.unscored_head if args.unscored_head is not None else (0.1 if first_frame else 0.0)
     if not 0 <= head < 1:
@@ -144,6 +152,40 @@ def run_bench(args: argparse.Namespace) -> int:
     console.print(f"wrote {out / 'results.md'}, {out / 'results.json'}, "
                   + ", ".join(str(p) for p in plots)
                   + (f"; maps under {args.save_maps}" if args.save_maps else ""))
+    return 0
+
+
+def run_perception_bench(args: argparse.Namespace) -> int:
+    """``bench --mission CONFIG``: :mod:`.perception`'s rows on box sequences."""
+    from eaglemission.lab.bench.perception import bench_sequence, report
+
+    from eaglemission.config import load_config
+    from eaglemission.errors import ConfigError
+
+    try:
+        cfg = load_config(args.mission)
+    except ConfigError as exc:
+        raise UsageError(f"--mission {args.mission}: {exc}") from None
+    only = [s.strip() for s in args.sequences.split(",") if s.strip()] if args.sequences else None
+    sequences = [s for s in find_sequences(Path(args.data), only, box_origin=args.box_origin)
+                 if s.boxes is not None]
+    if not sequences:
+        raise UsageError(f"--mission: no box-annotated sequence (<seq>/boxes.txt) under "
+                         f"{args.data}")
+    if args.max_frames is not None:
+        sequences = [s.head(args.max_frames) for s in sequences]
+    per_seq = {}
+    for seq in sequences:
+        per_seq[seq.name] = bench_sequence(seq, cfg, args.fps)
+        print(f"# {seq.name}: " + ", ".join(f"{k.strip()} {v.hits}/{v.frames}"
+                                            for k, v in per_seq[seq.name].items()),
+              file=sys.stderr, flush=True)
+    text = report(per_seq)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "perception.md").write_text(f"# The mission's perception on {args.data}\n\n"
+                                       f"Mission file: `{args.mission}`\n\n" + text + "\n")
+    print(text)
     return 0
 
 

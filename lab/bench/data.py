@@ -10,8 +10,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.detectors.cli_params import UsageError
-from eaglemission.detectors.inputs import images_in, read_image
+from eaglemission.commands.params import UsageError
+from eaglemission.perception.inputs import images_in, read_image
 from eaglemission.lab.bench.boxes import (
     BoxFormatError,
     box_from_mask,

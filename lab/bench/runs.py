@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-from eaglemission.detectors.cli_params import DetectorSpec
-from eaglemission.detectors.inputs import frame_time_ns, read_image
+from eaglemission.commands.params import DetectorSpec
+from eaglemission.perception.inputs import frame_time_ns, read_image
 from eaglemission.lab.bench.boxes import (
     BoxScores,
     box_from_mask,

@@ -8,11 +8,11 @@ import json
 import cv2
 import numpy as np
 import pytest
-from eaglemission.detectors.cli_params import UsageError, parse_detector_specs, parse_kv
-from eaglemission.detectors.overlay import MIN_WIDTH_PX
 from saliency_datasets import make_box_dataset, make_mask_dataset
 
 from eaglemission.cli import main
+from eaglemission.commands.params import UsageError, parse_detector_specs, parse_kv
+from eaglemission.perception.overlay import MIN_WIDTH_PX
 
 
 def test_parse_detector_specs():

@@ -1,4 +1,4 @@
-"""The overlay picture of ``eaglemission detect`` (eaglemission.detectors.overlay): labels
+"""The overlay picture of ``eaglemission detect`` (eaglemission.perception.overlay): labels
 never over a box, colour only where the map is salient, the frame at its own coordinates."""
 
 from __future__ import annotations
@@ -6,9 +6,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from eaglemission.detectors.overlay import MIN_WIDTH_PX, draw_overlay, threshold_uint8
 
 from eaglemission.geometry import order_corners
+from eaglemission.perception.overlay import MIN_WIDTH_PX, draw_overlay, threshold_uint8
 from eaglemission.types import Detection, DetectionResult
 
 

@@ -19,8 +19,7 @@ def make_runner(vehicle, sitl_config) -> MissionRunner:
         return MissionRunner(
             sitl_config, ApproachConfig(), vehicle=vehicle, cameras={},
             models={c: sitl_config.cameras.wide.to_model(c) for c in ("wide", "narrow")},
-            detectors={},
-            coarse=None, fine=None, clock=clock,
+            tools={}, clock=clock,
             mission_log=MissionLog(None, now_ns=clock.now_ns))
 
     return asyncio.run(build())

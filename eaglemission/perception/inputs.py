@@ -7,8 +7,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.detectors.cli_params import UsageError
 from numpy.typing import NDArray
+
+from eaglemission.commands.params import UsageError
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 T0_NS = 1_000_000_000  # first frame's timestamp (the virtual clock also starts at 1 s)

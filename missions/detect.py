@@ -1,8 +1,13 @@
-"""``eaglemission detect``: run one detector on a video or an image folder and write overlay
-images (:mod:`eaglemission.detectors.overlay`: saliency where salient with its colour bar and
-threshold, region outlines, ranked MBRs with their corner order) and ``detections.jsonl``.
-Detectors are loaded only through ``eaglemission.registry.load("detectors", name, params)``. See
-docs/detectors.md."""
+"""``eaglemission detect``: a video or an image folder through the mission's perception, or one
+detector, with overlay images (:mod:`eaglemission.perception.overlay`: saliency where salient
+with its colour bar and threshold, region outlines, ranked MBRs with their corner order, the kept
+target's box) and ``detections.jsonl``.
+
+With ``--config MISSION`` (a mission file) it runs exactly what the mission runs on a camera
+(:mod:`.footage`: detect, acquire and keep, choose the target), and each line of
+``detections.jsonl`` gives the target's box in that frame (null until the target is confirmed)
+and the boxes best first, the target's first. With ``--detector NAME`` it runs that detector
+alone. See docs/detectors.md."""
 
 from __future__ import annotations
 
@@ -11,28 +16,31 @@ import json
 import logging
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, cast
 
 import cv2
 import numpy as np
-from eaglemission.detectors.cli_params import UsageError, deep_merge, parse_kv
-from eaglemission.detectors.inputs import (
+from eaglemission.missions.footage import FootageOptions, FootagePerception
+from numpy.typing import NDArray
+
+from eaglemission import registry
+from eaglemission.commands import Command
+from eaglemission.commands.params import UsageError, deep_merge, parse_kv
+from eaglemission.config import MissionFile
+from eaglemission.errors import InputError
+from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance
+from eaglemission.perception.inputs import (
     IMAGE_EXTS,
     frame_time_ns,
     images_in,
     read_image,
     read_target_image,
 )
-from eaglemission.detectors.overlay import draw_overlay
-from numpy.typing import NDArray
-
-from eaglemission import registry
-from eaglemission.commands import Command
-from eaglemission.errors import InputError
-from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance
-from eaglemission.types import Frame, TargetPrior
+from eaglemission.perception.keep import box_of
+from eaglemission.perception.overlay import draw_overlay
+from eaglemission.types import Detection, DetectionResult, Frame, TargetPrior
 
 # the logger keeps the name of the module the command came from (eaglemission.detectors.cli,
 # shown in the log lines); built, not spelled out: a module name string counts as an import
@@ -131,7 +139,8 @@ def _detect_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", type=Path, help="a video file or a folder of images")
     p.add_argument("--detector", default=None, help="detector plugin (see `eaglemission plugins`)")
     p.add_argument("--config", type=Path, default=None,
-                   help="YAML: a mission file (its `detector` section is used) or detector params")
+                   help="a mission file: run the mission's perception (acquire and keep) as on "
+                        "a camera; or a YAML of detector params (with --detector)")
     p.add_argument("--params", nargs="*", default=[], metavar="KEY=VALUE",
                    help="detector params, e.g. regions.threshold=otsu downscale=2")
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -175,15 +184,7 @@ def run_detect(args: argparse.Namespace) -> int:
         raise UsageError(f"--fps: must be > 0, got {args.fps}")
     if args.max_frames is not None and args.max_frames < 1:
         raise UsageError(f"--max-frames: must be >= 1, got {args.max_frames}")
-    name, params = detector_from_args(args)
-    prior = prior_from_args(args)
-    image = target_image_from_args(args)
-    detector = registry.load("detectors", name, params)
-    if image is not None:  # the appearance prior after the detector, as the mission flies it
-        section = _config_data(args.config).get("appearance") if args.config else None
-        cfg = AppearanceConfig.model_validate(section or {})
-        detector = TargetAppearance(image=image, example=cfg.example).with_prior(detector,
-                                                                                 cfg.prior)
+    step, name = _stepper(args)
     out = Path(args.out)
     frames_iter = iter_input(Path(args.input), args.fps, args.max_frames)
     out.mkdir(parents=True, exist_ok=True)
@@ -205,11 +206,12 @@ def run_detect(args: argparse.Namespace) -> int:
             for stem, frame in frames_iter:
                 t = time.perf_counter()
                 try:
-                    result = detector.detect(frame, prior)
+                    result, target, kept = step(frame)
                 except InputError as exc:
                     raise UsageError(f"frame {stem}: {exc}") from None
                 times.append(time.perf_counter() - t)
-                overlay = draw_overlay(frame.image, result)
+                overlay = draw_overlay(frame.image, result,
+                                       kept_box=box_of(target) if kept and target else None)
                 cv2.imwrite(str(out / f"{stem}.jpg"), overlay)
                 if not args.no_video:
                     if writer is None:
@@ -222,13 +224,17 @@ def run_detect(args: argparse.Namespace) -> int:
                         size_warned = True
                         console.print(f"[yellow]frame {stem}: size changed; overlay.mp4 keeps "
                                       f"{size[0]}x{size[1]} frames only (the JPEGs have all)")
+                ranked = ([target] if target is not None else []) + [
+                    d for d in result.detections if target is None
+                    or not np.allclose(d.center_px, target.center_px)]
                 jl.write(json.dumps({
                     "frame": stem, "timestamp_ns": frame.timestamp_ns,
                     "threshold": result.threshold,
+                    "target": None if not kept or target is None else _box_json(target),
                     "detections": [{"rank": k, "score": d.score, "center_px": d.center_px,
                                     "corners_px": d.corners_px.tolist(), "size_px": d.size_px,
                                     "angle_deg": d.angle_deg, "area_px": d.area_px}
-                                   for k, d in enumerate(result.detections)]}) + "\n")
+                                   for k, d in enumerate(ranked)]}) + "\n")
                 n += 1
                 n_det += len(result.detections)
     finally:
@@ -239,7 +245,59 @@ def run_detect(args: argparse.Namespace) -> int:
     return 0
 
 
+Step = Callable[[Frame], tuple[DetectionResult, Detection | None, bool]]
+"""One frame: (the detector's result, the target or best detection, whether it is kept)."""
+
+
+def _box_json(d: Detection) -> dict[str, Any]:
+    u0, v0, u1, v1 = box_of(d)
+    return {"center_px": d.center_px, "box_px": [u0, v0, u1, v1]}
+
+
+def _mission_file(path: Path) -> MissionFile | None:
+    """``--config``'s mission file, or None when it is only detector params."""
+    data = _config_data(path)
+    if not (isinstance(data, dict) and "mission" in data and "cameras" in data):
+        return None
+    from eaglemission.config import load_config
+
+    return load_config(path)
+
+
+def _stepper(args: argparse.Namespace) -> tuple[Step, str]:
+    """What runs on each frame: the mission's perception (``--config`` a mission file, no
+    ``--detector``), else one detector (followed by the appearance prior with an image)."""
+    cfg = _mission_file(args.config) if args.config is not None else None
+    if cfg is not None and args.detector is None and not args.params:
+        image = read_target_image(Path(args.target_image)) if args.target_image else None
+        fp = FootagePerception(cfg, FootageOptions(example_image=image))
+
+        def mission(frame: Frame) -> tuple[DetectionResult, Detection | None, bool]:
+            meas = fp.process(frame)
+            res = fp.last_result or DetectionResult(np.zeros((1, 1), np.float32), (),
+                                                    frame.timestamp_ns, frame.camera_id,
+                                                    frame.seq)
+            return res, meas.detection, meas.kept
+
+        return mission, f"the mission's perception of {args.config}"
+    name, params = detector_from_args(args)
+    prior = prior_from_args(args)
+    image = target_image_from_args(args)
+    detector = registry.load("detectors", name, params)
+    if image is not None:  # the appearance prior after the detector, as the mission flies it
+        section = _config_data(args.config).get("appearance") if args.config else None
+        appearance = AppearanceConfig.model_validate(section or {})
+        detector = TargetAppearance(image=image, example=appearance.example).with_prior(
+            detector, appearance.prior)
+
+    def alone(frame: Frame) -> tuple[DetectionResult, Detection | None, bool]:
+        res = detector.detect(frame, prior)
+        return res, res.best, False
+
+    return alone, name
+
+
 DETECT_COMMAND = Command(
-    "run a detector on a video or an image folder and write overlays (saliency, regions, "
-    "ranked MBRs, legend)",
+    "run the mission's perception (--config MISSION) or a detector on a video or an image "
+    "folder: the target's box per frame, overlays",
     _detect_args, run_detect)
