@@ -35,9 +35,9 @@ from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.commands.params import build_spec, parse_detector_specs  # noqa: E402
 
 from eaglemission import registry  # noqa: E402
+from eaglemission.commands.params import build_spec, parse_detector_specs  # noqa: E402
 from eaglemission.errors import EagleMissionError  # noqa: E402
 from eaglemission.types import Frame  # noqa: E402
 

@@ -41,9 +41,9 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
-from eaglemission.commands.params import parse_detector_specs  # noqa: E402
 
 from eaglemission import registry  # noqa: E402
+from eaglemission.commands.params import parse_detector_specs  # noqa: E402
 from eaglemission.errors import EagleMissionError  # noqa: E402
 from eaglemission.types import Frame  # noqa: E402
 

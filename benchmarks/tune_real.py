@@ -54,7 +54,6 @@ from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from eaglemission.perception.inputs import frame_time_ns  # noqa: E402
 from eaglemission.lab.bench.boxes import (  # noqa: E402
     BoxScores,
     box_from_mask,
@@ -71,6 +70,7 @@ from eaglemission.lab.bench.metrics import CurveAccumulator, normalize_map  # no
 
 from eaglemission import registry  # noqa: E402
 from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance  # noqa: E402
+from eaglemission.perception.inputs import frame_time_ns  # noqa: E402
 from eaglemission.perception.regions import RegionsConfig, find_regions  # noqa: E402
 from eaglemission.types import DetectionResult, Frame  # noqa: E402
 

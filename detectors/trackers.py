@@ -67,12 +67,20 @@ class OpenCVTracker:
         rect = (int(round((u0 + 0.5) * s)), int(round((v0 + 0.5) * s)),
                 max(1, int(round((u1 - u0) * s))), max(1, int(round((v1 - v0) * s))))
         self._tracker = self._create()
-        self._tracker.init(self._small(frame), rect)
+        try:
+            self._tracker.init(self._small(frame), rect)
+        except cv2.error:  # a box OpenCV cannot model (e.g. too small once reduced): no track
+            self._tracker = None
 
     def update(self, frame: Frame) -> Box | None:
+        """The box in ``frame``; None when the target is lost, or when OpenCV's tracker fails
+        on the frame (its model collapsed): a lost target the keeper looks for again."""
         if self._tracker is None:
             return None
-        ok, (x, y, w, h) = self._tracker.update(self._small(frame))
+        try:
+            ok, (x, y, w, h) = self._tracker.update(self._small(frame))
+        except cv2.error:
+            ok, w, h = False, 0, 0
         if not ok or w <= 0 or h <= 0:
             self._tracker = None
             return None

@@ -274,7 +274,8 @@ def _stepper(args: argparse.Namespace) -> tuple[Step, str]:
 
         def mission(frame: Frame) -> tuple[DetectionResult, Detection | None, bool]:
             meas = fp.process(frame)
-            res = fp.last_result or DetectionResult(np.zeros((1, 1), np.float32), (),
+            h, w = np.asarray(frame.image).shape[:2]  # no map when only the tracker ran
+            res = fp.last_result or DetectionResult(np.zeros((h, w), np.float32), (),
                                                     frame.timestamp_ns, frame.camera_id,
                                                     frame.seq)
             return res, meas.detection, meas.kept

@@ -44,7 +44,7 @@ from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter
 from eaglemission.perception.appearance import TargetAppearance
-from eaglemission.perception.keep import TargetKeeper
+from eaglemission.perception.keep import TargetKeeper, box_detection
 from eaglemission.recording.foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
@@ -308,9 +308,32 @@ def choose_detection(result: DetectionResult, req: Request,
         def match(d: Detection) -> float:
             return appearance.example_match(image, d.center_px)
 
-    return select_detection(result, req.predicted_px, model.width_px, model.height_px,
-                            p.image_border_px, gate_px, plausible, allow_cut=allow_cut,
-                            match=match, match_min=min_ncc or 0.0)
+    det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
+                           p.image_border_px, gate_px, plausible, allow_cut=allow_cut,
+                           match=match, match_min=min_ncc or 0.0)
+    if match is None or min_ncc is None or appearance is None or appearance.image is None:
+        return det
+    # searching: the example itself, where it matches the whole frame best, when it matches
+    # better than the detector's candidate (a small target the detector misses or confuses
+    # with its neighbours); only where the camera can see the target at the example's size
+    if state is not None and not example_size_plausible(model, state, target,
+                                                        appearance.image.shape):
+        return det
+    found = appearance.locate_example(np.asarray(frame.image))
+    if found is None or found[1] < min_ncc or (det is not None and match(det) >= found[1]):
+        return det
+    return box_detection(found[0], frame.camera_id, score=found[1])
+
+
+def example_size_plausible(model: CameraModel, state: VehicleState, target: TargetConfig,
+                           example_shape: tuple[int, ...]) -> bool:
+    """Whether the target seen at the image's centre has about the example's size (within a
+    factor 4 in area): where it cannot, the example is not looked for at its own size."""
+    centre = ((model.width_px - 1) / 2, (model.height_px - 1) / 2)
+    exp = expected_area_px(model, state, centre, target.length_m, target.width_m,
+                           target.height_m)
+    area = float(example_shape[0] * example_shape[1])
+    return exp is not None and 0.25 * exp <= area <= 4.0 * exp
 
 
 def target_candidates(det: Detection | None, req: Request,
@@ -380,7 +403,14 @@ class Perception:
             req = replace(req, predicted_px=((u0 + u1) / 2, (v0 + v1) / 2))
         det = choose_detection(result, req, tools.appearance, self.p, self.target,
                                tools.fitter is not None)
-        kept = None if keeper is None else keeper.step(frame, det, ran)
+        likeness = None
+        if tools.appearance is not None and tools.appearance.image is not None:
+            image, appearance = np.asarray(frame.image), tools.appearance
+
+            def likeness(centre_px: tuple[float, float]) -> float:
+                return appearance.example_match(image, centre_px)
+
+        kept = None if keeper is None else keeper.step(frame, det, ran, likeness)
         if kept is not None:
             det = kept.detection
         chosen: tuple[Detection | None, bool, Measured] | None = None

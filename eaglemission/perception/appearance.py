@@ -114,6 +114,36 @@ def example_ncc(image: NDArray[np.uint8], example: NDArray[np.uint8],
     return float(cv2.minMaxLoc(ncc)[1])
 
 
+LOCATE_SCALES = (0.8, 1.0, 1.25)
+"""The example's scales :func:`locate_example` tries (a target the example was cropped from,
+a few frames on)."""
+
+
+def locate_example(image: NDArray[np.uint8], example: NDArray[np.uint8]
+                   ) -> tuple[tuple[float, float, float, float], float] | None:
+    """See :meth:`TargetAppearance.locate_example` (the frame and the example reduced together
+    so that the example's long side is at most :data:`MATCH_SIDE_PX`)."""
+    if image.ndim != 3:
+        return None
+    th, tw = example.shape[:2]
+    k = min(1.0, MATCH_SIDE_PX / max(th, tw))
+    small: NDArray[np.uint8] = image if k == 1.0 else np.asarray(
+        cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_AREA), np.uint8)
+    best: tuple[float, tuple[float, float, float, float]] | None = None
+    for s in LOCATE_SCALES:
+        w, h = max(3, round(tw * k * s)), max(3, round(th * k * s))
+        if h > small.shape[0] or w > small.shape[1]:
+            continue
+        t = cv2.resize(example, (w, h), interpolation=cv2.INTER_AREA)
+        ncc = cv2.matchTemplate(small, t, cv2.TM_CCOEFF_NORMED)
+        _, peak, _, (u, v) = cv2.minMaxLoc(ncc)
+        if best is None or peak > best[0]:
+            # pixel edges: u - 0.5 reduced is u / k - 0.5 in the frame
+            box = (u / k - 0.5, v / k - 0.5, (u + w) / k - 0.5, (v + h) / k - 0.5)
+            best = (float(peak), box)
+    return None if best is None else (best[1], best[0])
+
+
 def read_example_image(path: str | Path, *, where: str = "target.appearance_image"
                        ) -> NDArray[np.uint8]:
     """The example image at ``path`` (BGR); :class:`ConfigError` naming ``where`` when it
@@ -165,6 +195,15 @@ class TargetAppearance:
         if self.image is None:
             return -1.0
         return example_ncc(image, self.image, centre_px)
+
+    def locate_example(self, image: NDArray[np.uint8]
+                       ) -> tuple[tuple[float, float, float, float], float] | None:
+        """Where the example image itself matches the whole frame best, at its own scale
+        (x0.8, 1, 1.25): its box (u_min, v_min, u_max, v_max) and the normalised
+        cross-correlation there; None without an example or when it does not fit the frame."""
+        if self.image is None:
+            return None
+        return locate_example(image, self.image)
 
     def with_prior(self, detector: Any, prior: PriorConfig | None) -> Any:
         """``detector`` followed by the appearance prior (``prior``; None: the detector alone,

@@ -10,8 +10,10 @@ One :class:`TargetKeeper` per camera, a small state machine:
   at close range, where the pose wants the detector's region) the detector re-checks. A chosen
   detection on the kept box is the target (the tracker restarts on it when their boxes overlap
   less than ``restart_iou``: drift, a change of size); one elsewhere in ``switch_after``
-  re-checks in a row moves the keeper to it; a tracker that loses the target hands the frame to
-  the detector, and without a detection on it the keeper searches again.
+  re-checks in a row moves the keeper to it (with an example image of the target, only when it
+  looks more like the example than the tracker's box: the detector may prefer another object);
+  a tracker that loses the target hands the frame to the detector, and without a detection on
+  it the keeper searches again.
 
 Before the target is confirmed the keeper keeps nothing (:meth:`TargetKeeper.step` returns
 None): what a frame shows before that is a candidate, not the target.
@@ -19,6 +21,7 @@ None): what a frame shows before that is a candidate, not the target.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +61,10 @@ class Kept:
 
     detection: Detection
     from_tracker: bool
+
+
+def _centre(box: Box) -> tuple[float, float]:
+    return ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
 
 
 def box_of(det: Detection) -> Box:
@@ -116,9 +123,13 @@ class TargetKeeper:
         return (not self.keeping or close_range
                 or self._since_check + 1 >= self.config.detect_every_frames)
 
-    def step(self, frame: Frame, chosen: Detection | None, detected: bool) -> Kept | None:
+    def step(self, frame: Frame, chosen: Detection | None, detected: bool,
+             likeness: Callable[[tuple[float, float]], float] | None = None) -> Kept | None:
         """The kept target in ``frame`` (None while searching). ``detected``: the detector ran
-        on this frame; ``chosen``: its chosen detection (None: none)."""
+        on this frame; ``chosen``: its chosen detection (None: none); ``likeness``: how much
+        the frame at a pixel looks like the target's example image (None: no example): a
+        detection elsewhere moves the keeper only if it looks more like the example than the
+        tracker's box does."""
         if not self.keeping:
             return self._search(frame, chosen) if detected else None
         tracked = self.tracker.update(frame)
@@ -137,7 +148,8 @@ class TargetKeeper:
                 self.tracker.start(frame, box)
             self.box = box
             return Kept(chosen, False)
-        if chosen is not None:
+        if chosen is not None and (tracked is None or likeness is None or likeness(
+                chosen.center_px) > likeness(_centre(tracked))):
             self._off += 1
             if self._off >= self.config.switch_after:  # the detector insists: move to it
                 self._off = 0

@@ -14,8 +14,6 @@ import shlex
 import sys
 from pathlib import Path
 
-from eaglemission.commands.params import UsageError, build_spec, parse_detector_specs
-from eaglemission.perception.inputs import read_target_image
 from eaglemission.lab.bench.data import find_sequences, first_frame_crop
 from eaglemission.lab.bench.report import (
     markdown_table,
@@ -26,6 +24,8 @@ from eaglemission.lab.bench.report import (
 from eaglemission.lab.bench.runs import DetectorRun, run_detector_on_sequence
 
 from eaglemission.commands import Command
+from eaglemission.commands.params import UsageError, build_spec, parse_detector_specs
+from eaglemission.perception.inputs import read_target_image
 
 
 def _bench_args(p: argparse.ArgumentParser) -> None:

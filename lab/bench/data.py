@@ -10,8 +10,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eaglemission.commands.params import UsageError
-from eaglemission.perception.inputs import images_in, read_image
 from eaglemission.lab.bench.boxes import (
     BoxFormatError,
     box_from_mask,
@@ -19,6 +17,9 @@ from eaglemission.lab.bench.boxes import (
     crop_box,
     parse_boxes,
 )
+
+from eaglemission.commands.params import UsageError
+from eaglemission.perception.inputs import images_in, read_image
 
 
 @dataclass(frozen=True)

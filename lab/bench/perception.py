@@ -20,13 +20,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from eaglemission.perception.inputs import frame_time_ns, read_image
 from eaglemission.lab.bench.boxes import box_valid, grow_box, point_in_box
 from eaglemission.lab.bench.data import BenchSequence, first_frame_crop
 from eaglemission.missions.footage import FootageOptions, FootagePerception
 
 from eaglemission import registry
 from eaglemission.config import MissionFile
+from eaglemission.perception.inputs import frame_time_ns, read_image
 from eaglemission.types import Detection, Frame
 
 TRACKERS = ("csrt", "kcf")

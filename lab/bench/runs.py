@@ -10,8 +10,6 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-from eaglemission.commands.params import DetectorSpec
-from eaglemission.perception.inputs import frame_time_ns, read_image
 from eaglemission.lab.bench.boxes import (
     BoxScores,
     box_from_mask,
@@ -20,6 +18,8 @@ from eaglemission.lab.bench.boxes import (
 from eaglemission.lab.bench.data import BenchSequence, read_gt
 from eaglemission.lab.bench.metrics import CurveAccumulator, SequenceScores, normalize_map, quantize
 
+from eaglemission.commands.params import DetectorSpec
+from eaglemission.perception.inputs import frame_time_ns, read_image
 from eaglemission.types import DetectionResult, Frame
 
 
