@@ -17,7 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from eaglemission.lab.bench.boxes import box_valid, grow_box, point_in_box
@@ -76,21 +76,32 @@ def score(boxes: np.ndarray, i: int, centres: Sequence[tuple[float, float]],
     into.false += sum(not x for x in on)
 
 
-def _timed(fn: Callable[[], Any]) -> tuple[Any, float]:
+T = TypeVar("T")
+
+
+def _timed(fn: Callable[[Frame], T], frame: Frame) -> tuple[T, float]:
+    """(``fn(frame)``, its process time in ms)."""
     t0 = time.process_time()
-    out = fn()
+    out = fn(frame)
     return out, (time.process_time() - t0) * 1e3
+
+
+def _boxes(seq: BenchSequence) -> np.ndarray:
+    if seq.boxes is None:
+        raise ValueError(f"{seq.name}: no boxes.txt; the perception bench needs a box per frame")
+    return seq.boxes
 
 
 def run_mission(seq: BenchSequence, cfg: MissionFile, options: FootageOptions, first: int,
                 fps: float) -> tuple[MethodScore, MethodScore, int | None]:
     """(the mission's perception, the same from its confirmation on, the confirmation frame)."""
     fp = FootagePerception(cfg, options)
+    boxes = _boxes(seq)
     mission, keeping = MethodScore(), MethodScore()
     confirmed: int | None = None
     for i in range(first, len(seq.frames)):
         frame = Frame(read_image(seq.frames[i]), frame_time_ns(i, fps), "wide", i)
-        meas, ms = _timed(lambda f=frame: fp.process(f))
+        meas, ms = _timed(fp.process, frame)
         det = meas.detection
         target = det is not None and (meas.kept or fp.keeper is None)
         if target and confirmed is None:
@@ -98,22 +109,23 @@ def run_mission(seq: BenchSequence, cfg: MissionFile, options: FootageOptions, f
         if i == first:
             continue  # the example's frame
         centres = [det.center_px] if target and det is not None else []
-        score(seq.boxes, i, centres, mission)
+        score(boxes, i, centres, mission)
         mission.cpu_ms.append(ms)
         if confirmed is not None and i > confirmed:
-            score(seq.boxes, i, centres, keeping)
+            score(boxes, i, centres, keeping)
     return mission, keeping, confirmed
 
 
 def run_acquisition(seq: BenchSequence, detector: Any, first: int, fps: float) -> MethodScore:
     """The detector (+ prior) on every frame alone, all its regions (best first)."""
     out = MethodScore()
+    boxes = _boxes(seq)
     for i in range(first, len(seq.frames)):
         frame = Frame(read_image(seq.frames[i]), frame_time_ns(i, fps), "wide", i)
-        res, ms = _timed(lambda f=frame: detector.detect(f))
+        res, ms = _timed(detector.detect, frame)
         if i == first:
             continue
-        score(seq.boxes, i, [d.center_px for d in res.detections], out)
+        score(boxes, i, [d.center_px for d in res.detections], out)
         out.cpu_ms.append(ms)
     return out
 
@@ -123,15 +135,16 @@ def run_tracker(seq: BenchSequence, kind: str, first: int, fps: float,
     """A tracker started on the first box (the example's frame)."""
     tracker = registry.load("trackers", kind, params or {"scale": 1.0})
     out = MethodScore()
+    boxes = _boxes(seq)
     for i in range(first, len(seq.frames)):
         frame = Frame(read_image(seq.frames[i]), frame_time_ns(i, fps), "wide", i)
         if i == first:
-            u0, v0, u1, v1 = (float(x) for x in seq.boxes[i])
+            u0, v0, u1, v1 = (float(x) for x in boxes[i])
             tracker.start(frame, (u0, v0, u1, v1))
             continue
-        box, ms = _timed(lambda f=frame: tracker.update(f))
+        box, ms = _timed(tracker.update, frame)
         centres = [] if box is None else [((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)]
-        score(seq.boxes, i, centres, out)
+        score(boxes, i, centres, out)
         out.cpu_ms.append(ms)
     return out
 
