@@ -56,6 +56,7 @@ from eaglemission.drivers.vehicles.events import (
     EVENT_LINK,
     EVENT_REFUSED,
     EVENT_STATUS,
+    EVENT_TRUTH,
 )
 from eaglemission.drivers.vehicles.mavsdk import arming as mavsdk_arming
 from eaglemission.drivers.vehicles.mavsdk import params as mavsdk_params
@@ -135,7 +136,9 @@ class MavsdkVehicle:
         self.telemetry = MavsdkTelemetry(cfg, self.event, self._offboard.on_mode)
         self._c = self.telemetry.cache
         self._now_ns: Callable[[], int] = time.monotonic_ns
-        self._truth = HilTruth(self.telemetry.truth_flags) if cfg.ground_truth == "auto" else None
+        self._truth = (HilTruth(self.telemetry.truth_flags, altitude=cfg.ground_truth_altitude,
+                                on_problem=self._truth_problem)
+                       if cfg.ground_truth == "auto" else None)
         self._truth_handle: Any = None
         self.failover = FailoverWatch(lambda: self._offboard.active, self.event,
                                       cfg.offboard_loss_timeout_s or PX4_DEFAULT_OFFBOARD_LOSS_S)
@@ -255,6 +258,11 @@ class MavsdkVehicle:
         """Simulator ground truth (HIL_STATE_QUATERNION), None with ``ground_truth: off``;
         ``available()`` once a sample arrived (never on a real aircraft)."""
         return self._truth
+
+    def _truth_problem(self, text: str) -> None:
+        """The ground truth contradicts itself (MAVSDK's thread): say so, once."""
+        log.warning("%s", text)
+        self.event(EVENT_TRUTH, text, {"problem": "altitude_sense"})
 
     def summary(self) -> str:
         return f"url {self.config.url}"
