@@ -43,6 +43,7 @@ from eaglemission.missions.approach import (
     final_action,
 )
 from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.arm import ArmTracking
 from eaglemission.missions.camera_pump import CameraPump
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import (
@@ -61,7 +62,14 @@ from eaglemission.clock import Clock, run_blocking
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
 from eaglemission.geometry.geofence import inside_geofence
-from eaglemission.interfaces import Camera, Detector, Estimator, PlaneFitter, Vehicle
+from eaglemission.interfaces import (
+    Camera,
+    Detector,
+    Estimator,
+    Manipulator,
+    PlaneFitter,
+    Vehicle,
+)
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.perception.appearance import TargetAppearance
 from eaglemission.recording.provenance import config_record
@@ -97,6 +105,9 @@ class MissionRunner:
     on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
     autopilot_guard : the assembly's (applied) autopilot-parameter guard; None: its own
+    manipulator : the tool (:mod:`eaglemission.interfaces.manipulator`); None or one without a
+        workspace: the fixed tool at ``tool_point_m`` (the vehicle brings it to the target);
+        with a workspace, the arm closes the rest (:mod:`.arm`)
     """
 
     def __init__(self, cfg: MissionFile, params: ApproachConfig, *, vehicle: Vehicle,
@@ -109,7 +120,8 @@ class MissionRunner:
                  on_telemetry: Callable[[VehicleState], None] | None = None, record_all: bool = False,
                  on_processed: Callable[[Frame, Any], None] | None = None,
                  on_state: Callable[[float, str, str, str], None] | None = None,
-                 autopilot_guard: AutopilotGuard | None = None) -> None:
+                 autopilot_guard: AutopilotGuard | None = None,
+                 manipulator: Manipulator | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
         self.vehicle: SafeVehicle = (vehicle if isinstance(vehicle, SafeVehicle)
                                      else SafeVehicle(vehicle, cfg.safety, clock=clock))
@@ -126,11 +138,22 @@ class MissionRunner:
                                     perception=params.perception, plane=params.plane,
                                     grasp=params.grasp)
         self.guidance = gd.Guidance(gd.Plan.of(cfg, params.grasp.distance_m), params.guidance)
+        self.manipulator = manipulator
+        self.arm: ArmTracking | None = None
+        if manipulator is not None and manipulator.workspace is not None:
+            self.arm = ArmTracking(manipulator, mission_log,
+                                   grasp_distance_m=params.grasp.distance_m,
+                                   command_s=params.timeouts.command_s,
+                                   period_s=1.0 / params.guidance.setpoint_rate_hz,
+                                   state=self._arm_state)
+            self.track.arm = self.arm
         self.actuator = Actuator(  # the grasp pose is held for the stable period before leaving
             cfg, self.vehicle, clock, mission_log, self.guidance, grasp=params.grasp,
             timeouts=params.timeouts, grasp_callback=grasp_callback, guard=autopilot_guard,
-            grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz)
+            grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz,
+            manipulator=manipulator, arm_error=None if self.arm is None else self._arm_error)
         self.actuator.on_grasp_done = self._wake_machine_now
+        self.actuator.on_gripper_closing = self._arm_holds
         self._interrupt: tuple[str, FinalAction] | None = None
         self._watchdog_hold = ""
         self._stopping = False
@@ -180,6 +203,21 @@ class MissionRunner:
     def _wake_machine_now(self) -> None:
         self._wake_machine.set()
 
+    def _arm_holds(self) -> None:
+        """The gripper closes: the arm stops tracking (it holds what it grasped)."""
+        if self.arm is not None:
+            self.arm.tracking = False
+
+    def _arm_state(self) -> tuple[VehicleState, XYZ | None]:
+        """The telemetry now and the filter's target now (what the arm tracks)."""
+        return self.telemetry.current(), self.track.target_ned_m(self.clock.now_ns())
+
+    def _arm_error(self) -> float | None:
+        """The measured tool-to-target error of the arm (None: no target or read-back)."""
+        assert self.arm is not None
+        vs, target = self._arm_state()
+        return None if target is None else self.arm.error_m(vs, target)
+
     @property
     def policy(self) -> StatePolicy:
         return self.machine.policy
@@ -198,6 +236,9 @@ class MissionRunner:
         log.info("%.2f s: %s -> %s (%s)", t, old.value, new.value, reason)
         if self.on_state is not None:
             self.on_state(t, new.value, reason, action)
+        if self.arm is not None:
+            self.arm.tracking = POLICIES[new].arm_tracks and not self.actuator.gripper_closed
+            self.arm.wake.set()
         for action in POLICIES[new].on_enter:
             getattr(self, f"_enter_{action}")(now)
         self._wake_setpoint.set()
@@ -307,6 +348,8 @@ class MissionRunner:
         if applied.fresh:
             self._fresh = (wall, 0.0)
             self._wake_setpoint.set()
+            if self.arm is not None:
+                self.arm.wake.set()
 
     # -- machine -------------------------------------------------------------------------------
     async def _machine_loop(self) -> None:
@@ -450,6 +493,8 @@ class MissionRunner:
             await self.actuator.finished.wait()
             self._stopping = True
             self.actuator.stopping = True
+            if self.arm is not None:
+                self.arm.stopping = True
             self.pump.stopping = True
             self.telemetry.stopping = True
 
@@ -469,6 +514,8 @@ class MissionRunner:
                 tg.create_task(machine_guard())
                 tg.create_task(self._setpoint_loop())
                 tg.create_task(self._perception_loop())
+                if self.arm is not None:
+                    tg.create_task(self.arm.run())
                 for cam in self.cameras:
                     tg.create_task(self.pump.run(cam))
             completed = True
@@ -508,6 +555,10 @@ def mission_result(r: MissionRunner) -> MissionResult:
         states=r.states, t_start_s=0.0, t_end_s=r._t_s(),
         t_grasp_ready_s=r.t_grasp_ready_s,
         estimated_tool_errors_m=r.track.tool_errors,
+        t_gripper_closed_s=None if act.gripper_closed_ns is None
+        else (act.gripper_closed_ns - r._t0_ns) * 1e-9,
+        tool_body_at_close_m=act.tool_body_at_close_m,
+        estimated_grasp_error_m=act.grasp_error_at_close_m,
         latencies_ms=r.latencies_ms, frames_processed=dict(r._processed),
         frame_counts=r.pump.final_counts(r._processed, final=r.machine.final),
         detections=dict(r._detected), detection_frames=r.detection_frames,

@@ -20,6 +20,7 @@ from eaglemission.missions.approach_config import (
     PlaneConfig,
     TrackingConfig,
 )
+from eaglemission.missions.arm import ArmTracking
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import FitHint, Measurement
 from eaglemission.missions.target_state import (
@@ -87,6 +88,9 @@ class TargetTracking:
         """Fitted headings of the tracked candidate's complete close-range views."""
         self.silhouettes: list[float] = []
         """Their silhouette IoUs (:func:`~eaglemission.estimators.top_plane.silhouette_iou`)."""
+        self.arm: ArmTracking | None = None
+        """An arm that moves the tool: readiness is the grasp point inside its workspace
+        (:mod:`.arm`); None: the fixed tool's stability count."""
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -298,6 +302,11 @@ class TargetTracking:
             return
         tool = gd.tool_point_ned(vs.position_ned_m, vs.attitude_q, self.cfg.tool_point_m)
         h_err, dist = gd.tool_errors(tool, target_ned_m)
+        if self.arm is not None:  # the arm closes the rest: the grasp point within its reach
+            inside = counting and self.arm.reachable(vs, target_ned_m)
+            self.grasp_count = self.grasp_count + 1 if inside else 0
+            self.tool_errors = (h_err, dist)
+            return
         speed = math.sqrt(sum(v * v for v in vs.velocity_ned_mps))
         g = self.grasp_p
         self.grasp_window, self.grasp_count = grasp_progress(

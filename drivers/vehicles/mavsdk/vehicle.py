@@ -66,6 +66,7 @@ from eaglemission.drivers.vehicles.mavsdk.failover_watch import (
 )
 from eaglemission.drivers.vehicles.mavsdk.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.mavsdk.offboard import OffboardSession
+from eaglemission.drivers.vehicles.mavsdk.servo_outputs import ServoOutputLog
 from eaglemission.drivers.vehicles.mavsdk.session import MAV_RESULTS, MavsdkSession
 from eaglemission.drivers.vehicles.mavsdk.support import (
     REMEDIES,
@@ -140,6 +141,10 @@ class MavsdkVehicle:
                                 on_problem=self._truth_problem)
                        if cfg.ground_truth == "auto" else None)
         self._truth_handle: Any = None
+        self.servo_outputs = ServoOutputLog()
+        """The autopilot's SERVO_OUTPUT_RAW messages (arm servos read back, drivers/vehicles/
+        mavsdk/arm.py)."""
+        self._servo_handle: Any = None
         self.failover = FailoverWatch(lambda: self._offboard.active, self.event,
                                       cfg.offboard_loss_timeout_s or PX4_DEFAULT_OFFBOARD_LOSS_S)
         self.telemetry.on_gap = self.failover.on_gap
@@ -197,6 +202,10 @@ class MavsdkVehicle:
             self._truth_handle = self.plugins["MavlinkDirect"].subscribe_message(
                 "HIL_STATE_QUATERNION", lambda msg, _ud=None: truth.on_message(
                     now_ns(), msg.fields_json))
+        outputs = self.servo_outputs
+        self._servo_handle = self.plugins["MavlinkDirect"].subscribe_message(
+            "SERVO_OUTPUT_RAW", lambda msg, _ud=None: outputs.on_message(
+                time.monotonic_ns(), msg.fields_json))
         self._connected = True
         self._tasks = self.telemetry.start(self.plugins["Telemetry"], self.plugins["Mission"],
                                            self._now_ns, self.mavsdk["MavFlightMode"])
@@ -468,6 +477,20 @@ class MavsdkVehicle:
                                f"the autopilot answered DO_GRIPPER {name}"
                                + (f" ({REMEDIES[name]})" if name in REMEDIES else ""))
         self.event(EVENT_GRIPPER, f"Gripper {action}", {"action": action})
+
+    async def set_actuator(self, index: int, value: float) -> None:
+        """MAV_CMD_DO_SET_ACTUATOR through MAVSDK's ``Action.set_actuator``: PX4 drives the
+        outputs whose function is "Peripheral via Actuator Set ``index``" (301-306) to
+        ``value`` (-1..1); acknowledged, bounded by ``command_timeout_s``."""
+        self._require("set_actuator()")
+        if not 1 <= int(index) <= 6 or not -1.0 <= float(value) <= 1.0:
+            raise VehicleError("INVALID_ARGUMENT", "set_actuator()", (index, value),
+                               f"set_actuator({index}, {value}): index must be 1-6 and value "
+                               "-1..1")
+        action = self.plugins["Action"]
+        await self.bounded("set_actuator()",
+                           lambda: action.set_actuator(int(index), float(value)),
+                           params=(int(index), float(value)))
 
     async def get_param(self, name: str) -> float:
         """Read an autopilot parameter (float, else int), e.g. PX4's COM_OF_LOSS_T."""

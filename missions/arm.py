@@ -1,0 +1,102 @@
+"""The mission's side of an arm that moves its tool (a manipulator with a workspace).
+
+Everything here is measured, never true: the target is the camera filter's estimate, the
+vehicle's pose the telemetry, the tool's position the arm's own read-back. The grasp point is
+``grasp.distance_m`` above the target's top-face centre (as the fixed tool's grasp pose).
+
+* :func:`grasp_point_body` puts the grasp point in body FRD (the arm's frame);
+* readiness: the grasp point lies inside the workspace shrunk by its margin
+  (:meth:`ArmTracking.reachable`), counted over ``grasp.stable_frames`` frames;
+* :meth:`ArmTracking.run` commands the tool to the grasp point whenever it is woken (every
+  processed frame and every setpoint tick) while tracking is on;
+* :meth:`ArmTracking.error_m`: the measured tool-to-target error the gripper waits for.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from eaglemission.missions.log import MissionLog
+
+from eaglemission import errors
+from eaglemission.geometry import quat_to_R
+from eaglemission.geometry.workspace import offset_from_home
+from eaglemission.interfaces import Manipulator
+from eaglemission.types import XYZ, VehicleState
+
+
+def grasp_point_body(position_ned_m: Sequence[float], attitude_q: Sequence[float],
+                     target_ned_m: Sequence[float], grasp_distance_m: float) -> XYZ:
+    """The grasp point (``grasp_distance_m`` above the target's top-face centre) in body FRD
+    for a vehicle pose."""
+    g = np.array([target_ned_m[0], target_ned_m[1], target_ned_m[2] - grasp_distance_m])
+    b = quat_to_R(attitude_q).T @ (g - np.asarray(position_ned_m, dtype=np.float64))
+    return (float(b[0]), float(b[1]), float(b[2]))
+
+
+class ArmTracking:
+    """Readiness, tracking and the measured error of an arm (loop thread)."""
+
+    def __init__(self, arm: Manipulator, log: MissionLog, *, grasp_distance_m: float,
+                 command_s: float, period_s: float,
+                 state: Callable[[], tuple[VehicleState, XYZ | None]]) -> None:
+        if arm.workspace is None:
+            raise ValueError("arm: the manipulator has no workspace (a fixed tool)")
+        self.arm, self.log = arm, log
+        self.workspace = arm.workspace
+        self.grasp_distance_m = grasp_distance_m
+        self.command_s, self.period_s = command_s, period_s
+        self._state = state
+        self.tracking = False
+        self.stopping = False
+        self.wake = asyncio.Event()
+        self.commands = 0
+        self._failed = ""
+
+    def goal_body(self, vs: VehicleState, target_ned_m: XYZ) -> XYZ:
+        return grasp_point_body(vs.position_ned_m, vs.attitude_q, target_ned_m,
+                                self.grasp_distance_m)
+
+    def reachable(self, vs: VehicleState, target_ned_m: XYZ) -> bool:
+        """The grasp point lies inside the workspace shrunk by its margin."""
+        off = offset_from_home(self.goal_body(vs, target_ned_m), self.arm.home_m)
+        return self.workspace.offset_inside(off, self.workspace.margin_m)
+
+    def error_m(self, vs: VehicleState, target_ned_m: XYZ) -> float | None:
+        """Measured distance from the tool (its read-back) to the grasp point; None when the
+        read-back or the pose is not finite."""
+        tool = self.arm.report().tool_body_m
+        goal = self.goal_body(vs, target_ned_m)
+        if not all(math.isfinite(v) for v in (*tool, *goal)):
+            return None
+        return math.dist(tool, goal)
+
+    async def run(self) -> None:
+        """Command the tool to the grasp point while ``tracking``: on every wake and at least
+        every ``period_s``. A refused or late command is logged (once per kind) and retried
+        on the next wake."""
+        while not self.stopping:
+            try:
+                await asyncio.wait_for(self.wake.wait(), timeout=self.period_s)
+            except TimeoutError:
+                pass
+            self.wake.clear()
+            if not self.tracking:
+                continue
+            vs, target = self._state()
+            if target is None or not all(math.isfinite(v) for v in (*vs.position_ned_m,
+                                                                      *vs.attitude_q)):
+                continue
+            goal = self.goal_body(vs, target)
+            try:
+                await self.arm.move_to(goal, timeout_s=self.command_s)
+                self.commands += 1
+            except (errors.EagleMissionError, TimeoutError) as exc:
+                text = f"{type(exc).__name__}: {exc}"
+                if text != self._failed:
+                    self._failed = text
+                    self.log.write("fault_detected", what="arm_command", text=text,
+                                   response="retried on the next frame")
