@@ -149,7 +149,7 @@ class ApproachMission:
     @staticmethod
     def recorded_rate_hz(config: ApproachConfig) -> float:
         """Frames a camera records per second, at most: its loop's processing rate."""
-        return float(config.process_rate_hz)
+        return float(config.perception.process_rate_hz)
 
     @staticmethod
     def max_flight_s(config: ApproachConfig) -> float:
@@ -158,7 +158,7 @@ class ApproachMission:
         t = config.timeouts
         return float(t.preflight_s + t.takeoff_s + t.cruise_s + t.coarse_approach_s
                      + t.fine_approach_s + t.grasp_ready_s + t.target_lost_s
-                     + config.settle_timeout_s)
+                     + t.settle_s)
 
     def __init__(self, config: ApproachConfig | None = None, *, parts: FlightParts,
                  hooks: MissionHooks | None = None, **_context: Any) -> None:

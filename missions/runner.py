@@ -210,7 +210,7 @@ class MissionRunner:
 
     def _arm_state(self) -> tuple[VehicleState, XYZ | None]:
         """The telemetry now and the filter's target now (what the arm tracks)."""
-        return self.telemetry.current(), self.track.target_ned_m(self.clock.now_ns())
+        return self.telemetry.current(), self.track.arm_target_ned_m(self.clock.now_ns())
 
     def _arm_error(self) -> float | None:
         """The measured tool-to-target error of the arm (None: no target or read-back)."""

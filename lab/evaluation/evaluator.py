@@ -203,16 +203,14 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
     grasp = ApproachConfig.of(cfg).grasp
     h_err = dist = None
     t_gr = result.t_grasp_ready_s
-    arm_closed = (result.estimated_grasp_error_m is not None
-                  and result.t_gripper_closed_s is not None
-                  and result.tool_body_at_close_m is not None)
+    t_close, body_close = _closed(result)
+    arm_closed = (getattr(result, "estimated_grasp_error_m", None) is not None
+                  and t_close is not None and body_close is not None)
     if t_gr is not None and traj and target_position_ned_m is not None:
         # a fixed tool: its point at GRASP_READY; an arm: where it held the tool at the close
-        t_tool = result.t_gripper_closed_s if arm_closed else t_gr
-        assert t_tool is not None
+        t_tool = t_close if arm_closed and t_close is not None else t_gr
         st = _state_at(traj, t0_ns + int(t_tool * 1e9))
-        body = result.tool_body_at_close_m if arm_closed else cfg.tool_point_m
-        assert body is not None
+        body = body_close if arm_closed and body_close is not None else cfg.tool_point_m
         tool = tool_point_ned(st.position_ned_m, st.attitude_q, body)
         h_err, dist = tool_errors(tool, target_position_ned_m)
     elif t_gr is not None and result.estimated_tool_errors_m is not None:
@@ -249,7 +247,13 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
         reason=result.reason, action=result.action, time_to_grasp_ready_s=t_gr,
         horizontal_error_m=h_err, grasp_distance_m=dist, violations=violations,
         ended_safe=ended_safe, landed=landed, explanation=explanation,
-        gripper_closed=result.t_gripper_closed_s is not None, **closed)
+        gripper_closed=t_close is not None, **closed)
+
+
+def _closed(result: MissionResult) -> tuple[float | None, tuple[float, float, float] | None]:
+    """When the gripper closed and the tool's body point then (None: it did not close)."""
+    return (getattr(result, "t_gripper_closed_s", None),
+            getattr(result, "tool_body_at_close_m", None))
 
 
 def grasp_at_close(result: MissionResult, traj: Sequence[VehicleState], cfg: MissionFile,
@@ -259,7 +263,7 @@ def grasp_at_close(result: MissionResult, traj: Sequence[VehicleState], cfg: Mis
     read back (body FRD) on the TRUE vehicle pose then, against the true grasp point; and the
     vehicle's own error (the home tool point). Empty when the gripper did not close or nothing
     knows the target."""
-    t_c, tool_body = result.t_gripper_closed_s, result.tool_body_at_close_m
+    t_c, tool_body = _closed(result)
     if t_c is None or tool_body is None or not traj or target_position_ned_m is None:
         return {}
     st = _state_at(traj, t0_ns + int(t_c * 1e9))

@@ -14,8 +14,8 @@ Rendering (docs/cameras.md, "Synthetic world"):
    free of aliasing at 15 m with the 2.8 mm lens;
 2. sky: pixels whose ray points at or above the horizon;
 3. boxes, discs and stripes: their visible faces projected and filled (Lambert shading with a
-   seed-chosen sun), painted far to near; then a simulated arm under the body, when the
-   flight has one (its tool point in body FRD);
+   seed-chosen sun), painted far to near; then a simulated arm's gripper under the body, when
+   the flight has one (its tool point in body FRD);
 4. motion blur (``motion_blur``: along the image motion during the exposure), lighting gain
    x white balance, lens distortion (if the model has any: the pinhole render is remapped),
    additive Gaussian noise from a pre-drawn bank, Bayer mosaic + demosaic (``bayer_pattern``),
@@ -90,8 +90,8 @@ __all__ = ["BGRA_LEVEL_BUDGET_BYTES", "DEFAULT_TARGET_BGR", "SKY_HORIZON_BGR", "
 
 DEFAULT_TARGET_BGR = (30, 40, 210)
 SHADOW_FACTOR = 0.55  # ground brightness in a box's cast shadow (ambient light only)
-ARM_MOUNT_Z_M = 0.08  # body FRD z of the arm's rod top (the body's underside)
-ARM_ROD_M = 0.015  # the rod's square section
+ARM_SLIDE_M = 0.06  # the visible end of the arm's Z slide above the gripper block
+ARM_ROD_M = 0.015  # the slide's square section
 ARM_BLOCK_M = 0.04  # the gripper block's side, centred on the tool point
 ARM_ROD_BGR = (45, 45, 45)
 ARM_BLOCK_BGR = (90, 90, 90)
@@ -337,7 +337,7 @@ class SyntheticWorld:
         angular rate over the exposure; :mod:`.imaging`).
 
         ``tool_body_m``: an arm's tool point in body FRD (a simulated manipulator): the arm is
-        drawn under the body, a dark rod down to a small grey gripper block.
+        drawn under the body: a small grey gripper block on the end of a dark Z slide.
 
         Returns the BGR image (H, W, 3) uint8 and its :class:`GroundTruth` (``timestamp_ns``
         and ``render_time_ns`` both set to ``timestamp_ns``).
@@ -432,20 +432,18 @@ class SyntheticWorld:
                     R_on: NDArray[np.float64], C: NDArray[np.float64],
                     position_ned_m: Sequence[float], attitude_q: Sequence[float],
                     tool_body_m: Sequence[float]) -> None:
-        """A simulated arm in body FRD: a rod from the body's underside down to the tool and
-        a gripper block around the tool point; nearer than anything on the ground, so drawn
-        last (far part first)."""
+        """A simulated arm's end in body FRD: the gripper block around the tool point and the
+        end of the Z slide above it (the arm's stage sits behind the cameras, out of view).
+        Nearer than anything on the ground, so drawn last, the slide first."""
         H, W = img.shape[:2]
         R_nb = quat_to_R(attitude_q)
         p = np.asarray(position_ned_m, dtype=np.float64)
         tx, ty, tz = (float(v) for v in tool_body_m)
-        top_z = min(ARM_MOUNT_Z_M, tz - ARM_BLOCK_M)
-        parts = [  # (centre of the top face in body FRD, length, width, height, colour)
-            ((tx, ty, top_z), ARM_ROD_M, ARM_ROD_M, max(0.0, tz - top_z), ARM_ROD_BGR),
-            ((tx, ty, tz - ARM_BLOCK_M / 2), ARM_BLOCK_M, ARM_BLOCK_M, ARM_BLOCK_M,
-             ARM_BLOCK_BGR)]
-        for top, length, width, height, colour in parts:
-            for verts, nrm in box_faces(length, width, height):
+        parts = (((tx, ty, tz - ARM_BLOCK_M / 2 - ARM_SLIDE_M), ARM_ROD_M, ARM_SLIDE_M,
+                  ARM_ROD_BGR),
+                 ((tx, ty, tz - ARM_BLOCK_M / 2), ARM_BLOCK_M, ARM_BLOCK_M, ARM_BLOCK_BGR))
+        for top, side, height, colour in parts:
+            for verts, nrm in box_faces(side, side, height):
                 v_ned = (verts + np.asarray(top)) @ R_nb.T + p
                 n_ned = R_nb @ nrm
                 if float(n_ned @ (C - v_ned[0])) <= 0.0:

@@ -501,11 +501,19 @@ class MavsdkVehicle:
         return await mavsdk_params.autopilot_version(self)
 
     async def set_param(self, name: str, value: float) -> None:
-        """Write a float parameter (ints: :meth:`set_param_int`)."""
+        """Write a parameter: as a float, else as an int (PX4 answers WRONG_TYPE for the
+        other, e.g. PWM_MAIN_FUNC5 or COM_PREARM_MODE are ints)."""
         self._require("set_param()")
         p = self.plugins["Param"]
-        await self.bounded("set_param()", lambda: p.set_param_float(name, float(value)),
-                            params=(name, value))
+        try:
+            await self.bounded("set_param()", lambda: p.set_param_float(name, float(value)),
+                               params=(name, value))
+            return
+        except VehicleError as exc:
+            if exc.result != "WRONG_TYPE" or float(value) != int(value):
+                raise
+        await self.bounded("set_param()", lambda: p.set_param_int(name, int(value)),
+                           params=(name, value))
 
     # ------------------------------------------------------------------------------------------
     # offboard (:mod:`.mavsdk_offboard`)
