@@ -33,8 +33,8 @@ async def _check(url: str) -> dict[str, Any]:
     try:
         version = await v.autopilot_version()
         for out, fn in ((5, 301), (6, 302), (7, 303)):
-            await v.set_param(f"PWM_MAIN_FUNC{out}", fn)
-        await v.set_param("COM_PREARM_MODE", 2)
+            await v.set_param_int(f"PWM_MAIN_FUNC{out}", fn)
+        await v.set_param_int("COM_PREARM_MODE", 2)
         arm = ServoArm(ServoArmConfig(deadband_m=0.0), vehicle=v, tool_point_m=HOME)
         await arm.start(timeout_s=5.0)
         await arm.wait_joints((0.0, 0.0, 0.0), timeout_s=10.0)

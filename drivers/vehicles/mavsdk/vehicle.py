@@ -501,18 +501,18 @@ class MavsdkVehicle:
         return await mavsdk_params.autopilot_version(self)
 
     async def set_param(self, name: str, value: float) -> None:
-        """Write a parameter: as a float, else as an int (PX4 answers WRONG_TYPE for the
-        other, e.g. PWM_MAIN_FUNC5 or COM_PREARM_MODE are ints)."""
+        """Write a float parameter (ints: :meth:`set_param_int`)."""
         self._require("set_param()")
         p = self.plugins["Param"]
-        try:
-            await self.bounded("set_param()", lambda: p.set_param_float(name, float(value)),
-                               params=(name, value))
-            return
-        except VehicleError as exc:
-            if exc.result != "WRONG_TYPE" or float(value) != int(value):
-                raise
-        await self.bounded("set_param()", lambda: p.set_param_int(name, int(value)),
+        await self.bounded("set_param()", lambda: p.set_param_float(name, float(value)),
+                           params=(name, value))
+
+    async def set_param_int(self, name: str, value: int) -> None:
+        """Write an integer parameter (PX4's ``PWM_MAIN_FUNCn``, ``COM_PREARM_MODE``; PX4
+        ignores a float write to an int parameter, which MAVSDK reports as a timeout)."""
+        self._require("set_param_int()")
+        p = self.plugins["Param"]
+        await self.bounded("set_param_int()", lambda: p.set_param_int(name, int(value)),
                            params=(name, value))
 
     # ------------------------------------------------------------------------------------------
