@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from eaglemission.missions.approach_config import GraspConfig, TimeoutsConfig
+from eaglemission.missions.arm import ArmTracking
 from eaglemission.missions.guidance import Guidance
 from eaglemission.missions.log import MissionLog
 
@@ -75,7 +76,7 @@ class Actuator:
                  timeouts: TimeoutsConfig, grasp_hold_s: float,
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
                  guard: AutopilotGuard | None = None, manipulator: Manipulator | None = None,
-                 arm_error: Callable[[], float | None] | None = None) -> None:
+                 arm: ArmTracking | None = None) -> None:
         self.cfg, self.m = cfg, cfg.mission
         self.grasp_p, self.timeouts, self.grasp_hold_s = grasp, timeouts, grasp_hold_s
         self.vehicle, self.clock, self.log = vehicle, clock, mission_log
@@ -97,14 +98,13 @@ class Actuator:
         self.refused = ""
         self.on_grasp_done: Callable[[], None] | None = None
         self.manipulator = manipulator
-        self.arm_error = arm_error
-        """An arm's measured tool-to-target error (None: a fixed tool, the vehicle brought it
-        within the tolerance before GRASP_READY)."""
+        self.arm = arm if arm is not None and arm.enabled else None
+        """An arm (None: a fixed tool, the vehicle brought it within the tolerance before
+        GRASP_READY)."""
         self.gripper_closed = False
         self.gripper_closed_ns: int | None = None
         self.tool_body_at_close_m: tuple[float, float, float] | None = None
         self.grasp_error_at_close_m: float | None = None
-        self.on_gripper_closing: Callable[[], None] | None = None
 
     def submit(self, name: str, arg: Any = None) -> None:
         self.queue.put_nowait((name, arg))
@@ -127,7 +127,7 @@ class Actuator:
     async def run(self) -> None:
         v = self.vehicle
         manip = self.manipulator
-        if manip is not None and manip.workspace is not None:  # an arm: home it first
+        if manip is not None and self.arm is not None:  # an arm: home it first
             if not await self.command("manipulator_start", lambda: manip.start(
                     timeout_s=self.timeouts.command_s)):
                 self.failsafe_warnings.append("the arm did not start (see the log)")
@@ -167,7 +167,7 @@ class Actuator:
     async def grasp(self) -> None:
         action = self.grasp_p.action
         if action == "gripper":
-            if self.arm_error is not None and not await self._arm_within_tolerance():
+            if self.arm is not None and not await self._arm_within_tolerance():
                 return  # not reached: GRASP_READY's timeout ends the flight (on_timeout)
             self._gripper_closing()
             manip = self.manipulator
@@ -189,11 +189,11 @@ class Actuator:
     async def _arm_within_tolerance(self) -> bool:
         """Wait (at most ``timeouts.grasp_ready_s``) until the arm's measured tool-to-target
         error is within ``grasp.tolerance_m``; False when it never was."""
-        assert self.arm_error is not None
+        assert self.arm is not None
         tol = self.grasp_p.tolerance_m
         deadline = self.clock.now_ns() + int(self.timeouts.grasp_ready_s * 1e9)
         while not self.stopping:
-            err = self.arm_error()
+            err = self.arm.measured_error()
             if err is not None and err <= tol:
                 self.grasp_error_at_close_m = err
                 return True
@@ -217,8 +217,8 @@ class Actuator:
         self.tool_body_at_close_m = (float(t[0]), float(t[1]), float(t[2]))
         self.log.write("gripper", closing=True, tool_body_m=self.tool_body_at_close_m,
                        measured_error_m=self.grasp_error_at_close_m)
-        if self.on_gripper_closing is not None:
-            self.on_gripper_closing()
+        if self.arm is not None:
+            self.arm.hold()
 
     async def final(self, action: str) -> None:
         v = self.vehicle

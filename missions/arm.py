@@ -19,11 +19,12 @@ import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
 
 from eaglemission import errors
 from eaglemission.geometry import quat_to_R
-from eaglemission.geometry.workspace import offset_from_home
+from eaglemission.geometry.workspace import Workspace, offset_from_home
 from eaglemission.interfaces import Manipulator
 from eaglemission.types import XYZ, VehicleState
 
@@ -38,15 +39,25 @@ def grasp_point_body(position_ned_m: Sequence[float], attitude_q: Sequence[float
 
 
 class ArmTracking:
-    """Readiness, tracking and the measured error of an arm (loop thread)."""
+    """Readiness, tracking and the measured error of an arm (loop thread). Built for every
+    flight: ``enabled`` only when the manipulator has a workspace (a fixed tool: nothing
+    here runs)."""
 
-    def __init__(self, arm: Manipulator, log: MissionLog, *, grasp_distance_m: float,
+    @classmethod
+    def of(cls, manipulator: Manipulator | None, log: MissionLog, params: ApproachConfig, *,
+           state: Callable[[], tuple[VehicleState, XYZ | None]]) -> ArmTracking:
+        """For the approach's params: the grasp distance, the command timeout, the setpoint
+        rate as the tracking period."""
+        return cls(manipulator, log, grasp_distance_m=params.grasp.distance_m,
+                   command_s=params.timeouts.command_s,
+                   period_s=1.0 / params.guidance.setpoint_rate_hz, state=state)
+
+    def __init__(self, arm: Manipulator | None, log: MissionLog, *, grasp_distance_m: float,
                  command_s: float, period_s: float,
                  state: Callable[[], tuple[VehicleState, XYZ | None]]) -> None:
-        if arm.workspace is None:
-            raise ValueError("arm: the manipulator has no workspace (a fixed tool)")
-        self.arm, self.log = arm, log
-        self.workspace = arm.workspace
+        self.enabled = arm is not None and arm.workspace is not None
+        self._arm, self.log = arm, log
+        self._workspace = None if arm is None else arm.workspace
         self.grasp_distance_m = grasp_distance_m
         self.command_s, self.period_s = command_s, period_s
         self._state = state
@@ -55,6 +66,30 @@ class ArmTracking:
         self.wake = asyncio.Event()
         self.commands = 0
         self._failed = ""
+
+    @property
+    def arm(self) -> Manipulator:
+        assert self._arm is not None and self.enabled, "no arm (a fixed tool)"
+        return self._arm
+
+    @property
+    def workspace(self) -> Workspace:
+        assert self._workspace is not None, "no arm (a fixed tool)"
+        return self._workspace
+
+    def follow(self, tracks: bool) -> None:
+        """A state change: track while the state's policy says so (woken now)."""
+        self.tracking = self.enabled and tracks
+        self.wake.set()
+
+    def hold(self) -> None:
+        """The gripper closes: stop tracking (the arm holds what it grasped)."""
+        self.tracking = False
+
+    def measured_error(self) -> float | None:
+        """The measured tool-to-target error now (None: no target or read-back)."""
+        vs, target = self._state()
+        return None if target is None else self.error_m(vs, target)
 
     def goal_body(self, vs: VehicleState, target_ned_m: XYZ) -> XYZ:
         return grasp_point_body(vs.position_ned_m, vs.attitude_q, target_ned_m,
@@ -77,8 +112,8 @@ class ArmTracking:
     async def run(self) -> None:
         """Command the tool to the grasp point while ``tracking``: on every wake and at least
         every ``period_s``. A refused or late command is logged (once per kind) and retried
-        on the next wake."""
-        while not self.stopping:
+        on the next wake. Returns at once without an arm."""
+        while self.enabled and not self.stopping:
             try:
                 await asyncio.wait_for(self.wake.wait(), timeout=self.period_s)
             except TimeoutError:

@@ -55,7 +55,7 @@ from eaglemission.missions.perception import (
 from eaglemission.missions.result import MissionResult
 from eaglemission.missions.telemetry_watch import TelemetryWatch
 from eaglemission.missions.tracking import TargetTracking
-from eaglemission.missions.views import project_target
+from eaglemission.missions.views import CameraChoice, project_target
 
 from eaglemission import errors
 from eaglemission.clock import Clock, run_blocking
@@ -105,9 +105,7 @@ class MissionRunner:
     on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
     autopilot_guard : the assembly's (applied) autopilot-parameter guard; None: its own
-    manipulator : the tool (:mod:`eaglemission.interfaces.manipulator`); None or one without a
-        workspace: the fixed tool at ``tool_point_m`` (the vehicle brings it to the target);
-        with a workspace, the arm closes the rest (:mod:`.arm`)
+    manipulator : the tool; None: the fixed tool at ``tool_point_m`` (an arm: :mod:`.arm`)
     """
 
     def __init__(self, cfg: MissionFile, params: ApproachConfig, *, vehicle: Vehicle,
@@ -138,22 +136,15 @@ class MissionRunner:
                                     perception=params.perception, plane=params.plane,
                                     grasp=params.grasp)
         self.guidance = gd.Guidance(gd.Plan.of(cfg, params.grasp.distance_m), params.guidance)
-        self.manipulator = manipulator
-        self.arm: ArmTracking | None = None
-        if manipulator is not None and manipulator.workspace is not None:
-            self.arm = ArmTracking(manipulator, mission_log,
-                                   grasp_distance_m=params.grasp.distance_m,
-                                   command_s=params.timeouts.command_s,
-                                   period_s=1.0 / params.guidance.setpoint_rate_hz,
-                                   state=self._arm_state)
-            self.track.arm = self.arm
+        self.arm = ArmTracking.of(manipulator, mission_log, params, state=lambda: (
+            self.telemetry.current(), self.track.arm_target_ned_m(self.clock.now_ns())))
+        self.track.arm = self.arm if self.arm.enabled else None
         self.actuator = Actuator(  # the grasp pose is held for the stable period before leaving
             cfg, self.vehicle, clock, mission_log, self.guidance, grasp=params.grasp,
             timeouts=params.timeouts, grasp_callback=grasp_callback, guard=autopilot_guard,
             grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz,
-            manipulator=manipulator, arm_error=None if self.arm is None else self._arm_error)
+            manipulator=manipulator, arm=self.arm)
         self.actuator.on_grasp_done = self._wake_machine_now
-        self.actuator.on_gripper_closing = self._arm_holds
         self._interrupt: tuple[str, FinalAction] | None = None
         self._watchdog_hold = ""
         self._stopping = False
@@ -203,21 +194,6 @@ class MissionRunner:
     def _wake_machine_now(self) -> None:
         self._wake_machine.set()
 
-    def _arm_holds(self) -> None:
-        """The gripper closes: the arm stops tracking (it holds what it grasped)."""
-        if self.arm is not None:
-            self.arm.tracking = False
-
-    def _arm_state(self) -> tuple[VehicleState, XYZ | None]:
-        """The telemetry now and the filter's target now (what the arm tracks)."""
-        return self.telemetry.current(), self.track.arm_target_ned_m(self.clock.now_ns())
-
-    def _arm_error(self) -> float | None:
-        """The measured tool-to-target error of the arm (None: no target or read-back)."""
-        assert self.arm is not None
-        vs, target = self._arm_state()
-        return None if target is None else self.arm.error_m(vs, target)
-
     @property
     def policy(self) -> StatePolicy:
         return self.machine.policy
@@ -236,9 +212,7 @@ class MissionRunner:
         log.info("%.2f s: %s -> %s (%s)", t, old.value, new.value, reason)
         if self.on_state is not None:
             self.on_state(t, new.value, reason, action)
-        if self.arm is not None:
-            self.arm.tracking = POLICIES[new].arm_tracks and not self.actuator.gripper_closed
-            self.arm.wake.set()
+        self.arm.follow(POLICIES[new].arm_tracks and not self.actuator.gripper_closed)
         for action in POLICIES[new].on_enter:
             getattr(self, f"_enter_{action}")(now)
         self._wake_setpoint.set()
@@ -295,16 +269,7 @@ class MissionRunner:
 
     # -- cameras -------------------------------------------------------------------------------
     def cameras_needed(self) -> set[str]:
-        use = self.policy.cameras
-        if use is Cameras.BOTH:
-            return {CAMERA_WIDE, CAMERA_NARROW}
-        if use is Cameras.WIDE:
-            return {CAMERA_WIDE}
-        if use is Cameras.WIDE_WARMING_NARROW:
-            return {CAMERA_WIDE, CAMERA_NARROW} if self.track.choice.near_narrow else {CAMERA_WIDE}
-        if use is Cameras.FINE:
-            return {self.track.choice.fine_camera}
-        return set()
+        return needed_cameras(self.policy.cameras, self.track.choice)
 
     # -- perception ------------------------------------------------------------------------------
     async def _perception_loop(self) -> None:
@@ -348,8 +313,7 @@ class MissionRunner:
         if applied.fresh:
             self._fresh = (wall, 0.0)
             self._wake_setpoint.set()
-            if self.arm is not None:
-                self.arm.wake.set()
+            self.arm.wake.set()
 
     # -- machine -------------------------------------------------------------------------------
     async def _machine_loop(self) -> None:
@@ -420,14 +384,6 @@ class MissionRunner:
             interrupt_action=self._interrupt[1] if self._interrupt else "return")
 
     # -- setpoints -----------------------------------------------------------------------------
-    def _inside_envelope(self, pos: XYZ) -> bool:
-        """The goal is inside the geofence, with the safety envelope's margin (it would clamp
-        the setpoint short of the goal forever)."""
-        env = getattr(self.vehicle, "envelope", None)
-        if env is not None and hasattr(env, "safe_h"):
-            return bool(env.safe_h(float(pos[0]), float(pos[1])))
-        return inside_geofence(self.cfg.safety.geofence, pos[0], pos[1])
-
     async def _setpoint_loop(self) -> None:
         period = 1.0 / self.p.guidance.setpoint_rate_hz
         last_ns = self.clock.now_ns()
@@ -448,7 +404,7 @@ class MissionRunner:
             step = self.guidance.step(pol.goal.name, vs.position_ned_m, vs.yaw_deg,
                                       vs.attitude_q, None if filt is None else filt.position_ned_m,
                                       now, dt, trim=pol.trim)
-            self._goal_ok = self._inside_envelope(step.goal_ned_m)
+            self._goal_ok = inside_envelope(self.vehicle, self.cfg, step.goal_ned_m)
             self._at_standoff = step.at_standoff
             since = self._at_standoff_since_ns
             self._at_standoff_since_ns = (None if not step.at_standoff
@@ -492,9 +448,7 @@ class MissionRunner:
         async def stopper() -> None:
             await self.actuator.finished.wait()
             self._stopping = True
-            self.actuator.stopping = True
-            if self.arm is not None:
-                self.arm.stopping = True
+            self.actuator.stopping = self.arm.stopping = True
             self.pump.stopping = True
             self.telemetry.stopping = True
 
@@ -514,7 +468,7 @@ class MissionRunner:
                 tg.create_task(machine_guard())
                 tg.create_task(self._setpoint_loop())
                 tg.create_task(self._perception_loop())
-                if self.arm is not None:
+                if self.arm.enabled:
                     tg.create_task(self.arm.run())
                 for cam in self.cameras:
                     tg.create_task(self.pump.run(cam))
@@ -528,6 +482,29 @@ class MissionRunner:
                            frame_counts=result.frame_counts, wall_s=round(result.wall_s, 3),
                            completed=completed)
         return result
+
+
+def needed_cameras(use: Cameras, choice: CameraChoice) -> set[str]:
+    """The cameras a state's policy grabs (the camera choice says which is the fine one and
+    whether the target nears the narrow view)."""
+    if use is Cameras.BOTH:
+        return {CAMERA_WIDE, CAMERA_NARROW}
+    if use is Cameras.WIDE:
+        return {CAMERA_WIDE}
+    if use is Cameras.WIDE_WARMING_NARROW:
+        return {CAMERA_WIDE, CAMERA_NARROW} if choice.near_narrow else {CAMERA_WIDE}
+    if use is Cameras.FINE:
+        return {choice.fine_camera}
+    return set()
+
+
+def inside_envelope(vehicle: SafeVehicle, cfg: MissionFile, pos: XYZ) -> bool:
+    """The goal is inside the geofence, with the safety envelope's margin (it would clamp the
+    setpoint short of the goal forever)."""
+    env = getattr(vehicle, "envelope", None)
+    if env is not None and hasattr(env, "safe_h"):
+        return bool(env.safe_h(float(pos[0]), float(pos[1])))
+    return inside_geofence(cfg.safety.geofence, pos[0], pos[1])
 
 
 def configured_limits(cfg: MissionFile, p: ApproachConfig) -> Snapshot:

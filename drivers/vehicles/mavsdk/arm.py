@@ -16,7 +16,7 @@ import asyncio
 import time
 from typing import Annotated, Any
 
-from eaglemission.drivers.vehicles.mavsdk.servo_outputs import ServoOutputs
+from eaglemission.drivers.vehicles.mavsdk.outputs import ServoOutputs
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from eaglemission.errors import ConfigError, DriverError, TimeoutError_

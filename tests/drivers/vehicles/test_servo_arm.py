@@ -8,7 +8,7 @@ import json
 
 import pytest
 from eaglemission.drivers.vehicles.mavsdk.arm import ServoArm, ServoArmConfig
-from eaglemission.drivers.vehicles.mavsdk.servo_outputs import ServoOutputLog
+from eaglemission.drivers.vehicles.mavsdk.outputs import ServoOutputLog
 
 HOME = (0.45, 0.0, 0.35)
 
