@@ -9,7 +9,8 @@ vehicle's pose the telemetry, the tool's position the arm's own read-back. The g
   (:meth:`ArmTracking.reachable`), counted over ``grasp.stable_frames`` frames;
 * :meth:`ArmTracking.run` commands the tool to the grasp point whenever it is woken (every
   processed frame and every setpoint tick) while tracking is on;
-* :meth:`ArmTracking.error_m`: the measured tool-to-target error the gripper waits for.
+* :meth:`ArmTracking.error_m`: the measured tool-to-target error the gripper waits for;
+* :meth:`ArmTracking.hides`: the tool covers a view of the target (the shape check skips it).
 """
 
 from __future__ import annotations
@@ -23,10 +24,13 @@ from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
 
 from eaglemission import errors
-from eaglemission.geometry import quat_to_R
+from eaglemission.geometry import CameraModel, camera_pose_ned, quat_to_R
 from eaglemission.geometry.workspace import Workspace, offset_from_home
 from eaglemission.interfaces import Manipulator
 from eaglemission.types import XYZ, VehicleState
+
+TOOL_RADIUS_M = 0.04
+"""How far around its point an arm's tool (gripper and the slide above it) can cover the view."""
 
 
 def grasp_point_body(position_ned_m: Sequence[float], attitude_q: Sequence[float],
@@ -99,6 +103,26 @@ class ArmTracking:
         """The grasp point lies inside the workspace shrunk by its margin."""
         off = offset_from_home(self.goal_body(vs, target_ned_m), self.arm.home_m)
         return self.workspace.offset_inside(off, self.workspace.margin_m)
+
+    def hides(self, model: CameraModel, vs: VehicleState, corners_px: Sequence[Sequence[float]]
+              ) -> bool:
+        """The arm's tool, seen by ``model`` from the pose ``vs``, overlaps a detection's
+        corners (grown by :data:`TOOL_RADIUS_M` at the tool's range): that view of the target
+        is partly the arm's (its outline is not the target's shape)."""
+        tool = np.asarray(self.arm.report().tool_body_m, dtype=np.float64)
+        if not np.isfinite(tool).all():
+            return False
+        p = np.asarray(vs.position_ned_m, dtype=np.float64) + quat_to_R(vs.attitude_q) @ tool
+        pose = camera_pose_ned(model, vs.position_ned_m, vs.attitude_q).inverse()
+        cam = pose.apply(p)
+        depth = float(np.ravel(cam)[2])
+        if not depth > 0:
+            return False
+        u, v = (float(x) for x in model.project(cam)[0])
+        grow = TOOL_RADIUS_M * float(model.K[0, 0]) / depth
+        c = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+        return bool(c[:, 0].min() - grow <= u <= c[:, 0].max() + grow
+                    and c[:, 1].min() - grow <= v <= c[:, 1].max() + grow)
 
     def error_m(self, vs: VehicleState, target_ned_m: XYZ) -> float | None:
         """Measured distance from the tool (its read-back) to the grasp point; None when the

@@ -291,7 +291,9 @@ class TargetTracking:
                 self.fine_estimates += 1
             if accepted and meas.role == "fine":
                 self.latest_fix = (frame.timestamp_ns, pos)
-            if accepted and meas.fit_hint is not None and pol.camera_choice == "fine":
+            if (accepted and meas.fit_hint is not None and pol.camera_choice == "fine"
+                    and not (self.arm is not None and state is not None and det is not None
+                             and self.arm.hides(model, state, det.corners_px))):
                 self.check_shape(meas.fit_hint.yaw_deg, pos, cam_id,
                                  meas.fit_hint.silhouette_iou, meas.fit_hint.silhouette_yaw_deg)
             fresh = accepted

@@ -92,3 +92,22 @@ def test_no_command_while_tracking_is_off() -> None:
 
     asyncio.run(idle())
     assert t.commands == 0 and t.arm.report().tool_body_m == pytest.approx(HOME)
+
+
+def test_a_view_the_tool_covers_is_the_arms_not_the_targets() -> None:
+    """The shape check skips views whose detection the tool overlaps: from the grasp pose the
+    wide camera sees the gripper in front of the target's far edge."""
+    from eaglemission.config import load_config
+
+    clock = ManualClock()
+    at = _vs(TARGET[0] - 0.45, TARGET[1], TARGET[2] - 0.525)
+    t = _tracking(clock, at)
+    model = load_config().cameras.wide.to_model("wide")
+    from eaglemission.missions.views import project_target
+
+    tool_px = project_target(model, at, (TARGET[0], TARGET[1], TARGET[2] - 0.175))
+    u, v = float(tool_px[0]), float(tool_px[1])
+    around = [(u - 40, v - 10), (u + 40, v - 10), (u + 40, v + 200), (u - 40, v + 200)]
+    assert t.hides(model, at, around)
+    aside = [(u + 300, v), (u + 400, v), (u + 400, v + 100), (u + 300, v + 100)]
+    assert not t.hides(model, at, aside)
