@@ -5,6 +5,8 @@ state, true envelope violations, complete logs), the share of tolerable faults c
 the failures; exits 1 when a run missed its expected outcome. The full figure is 1,000 runs:
 
     python benchmarks/fault_campaign.py --runs 1000 --workers 2 --binning 2
+    python benchmarks/fault_campaign.py --runs 100 --workers 2 --seed 3 --binning 2 \
+        --manipulator simulated_arm
     python benchmarks/fault_campaign.py --runs 50 --workers 2 --binning 2 --vehicle emulator \
         --faults link_loss,link_delay,link_duplicate,link_reorder,autopilot_clock_jump
 
@@ -46,6 +48,8 @@ def main() -> int:
     ap.add_argument("--only-faults", metavar="KINDS",
                     help="of the same draws, fly only the runs whose fault is one of these "
                     "(comma-separated): after a change to those faults' path")
+    ap.add_argument("--manipulator", metavar="TYPE",
+                    help="fly every run with this manipulator (e.g. simulated_arm)")
     ap.add_argument("--no-imaging-effects", action="store_true",
                     help="keep the mission file's white balance, motion blur, Bayer and JPEG "
                     "(the worlds of the fault campaigns flown before they were drawn)")
@@ -74,7 +78,8 @@ def main() -> int:
                            out_dir=a.out, progress=True, faults=kinds, vehicle=a.vehicle,
                            only_faults=None if a.only_faults is None
                            else set(parse_kinds(a.only_faults)),
-                           imaging_effects=not a.no_imaging_effects)
+                           imaging_effects=not a.no_imaging_effects,
+                           manipulator=a.manipulator)
     wall = time.perf_counter() - t0
     print_summary(summary)
     failed = print_fault_table(summary.runs)

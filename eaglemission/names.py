@@ -3,7 +3,7 @@
 ENTRY_POINT_PREFIX = "eaglemission."
 
 ROLES: tuple[str, ...] = ("cameras", "vehicles", "detectors", "estimators", "fitters",
-                          "trackers", "missions", "worlds", "sections", "judges")
+                          "trackers", "manipulators", "missions", "worlds", "sections", "judges")
 
 CAMERA_WIDE = "wide"
 CAMERA_NARROW = "narrow"

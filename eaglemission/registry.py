@@ -1,7 +1,7 @@
 """Plugin registry: entry points, one group per role, checked against the role's Protocol.
 
 Plugins are loaded only from entry points (``eaglemission.cameras``, ``.vehicles``,
-``.detectors``, ``.estimators``, ``.fitters``, ``.trackers``, ``.missions``, ``.worlds``,
+``.detectors``, ``.estimators``, ``.fitters``, ``.trackers``, ``.manipulators``, ``.missions``, ``.worlds``,
 ``.sections``, ``.judges``); a config can never name an import path. A plugin class declares ``Config`` (a pydantic model of its params, with defaults) and a one-line
 ``description``; ``load(role, name, params, **context)`` validates the params with that model
 and constructs the plugin as ``cls(config=..., **context)``.
@@ -25,6 +25,7 @@ from eaglemission.interfaces import (
     Detector,
     Estimator,
     Judge,
+    Manipulator,
     Mission,
     PlaneFitter,
     Section,
@@ -41,6 +42,7 @@ PROTOCOLS: dict[str, type] = {
     "estimators": Estimator,
     "fitters": PlaneFitter,
     "trackers": Tracker,
+    "manipulators": Manipulator,
     "missions": Mission,
     "worlds": World,
     "sections": Section,

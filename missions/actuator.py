@@ -18,16 +18,20 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from eaglemission.missions.approach_config import GraspConfig, TimeoutsConfig
+from eaglemission.missions.arm import ArmTracking
 from eaglemission.missions.guidance import Guidance
 from eaglemission.missions.log import MissionLog
 
 from eaglemission import errors
 from eaglemission.clock import Clock
 from eaglemission.config import MissionFile, SafetyConfig
-from eaglemission.interfaces import Vehicle
+from eaglemission.interfaces import Manipulator, Vehicle
 from eaglemission.safety.autopilot_guard import AutopilotGuard
 
 log = logging.getLogger(__name__)
+
+ARM_CHECK_S = 0.02
+"""How often GRASP_READY checks an arm's measured tool-to-target error (mission clock)."""
 
 COM_OBL_RC_ACT_NAMES = {0: "Position mode", 1: "Altitude mode", 2: "Manual", 3: "Return",
                         4: "Land", 5: "Hold", 6: "Terminate", 7: "Disarm"}
@@ -71,7 +75,8 @@ class Actuator:
                  mission_log: MissionLog, guidance: Guidance, *, grasp: GraspConfig,
                  timeouts: TimeoutsConfig, grasp_hold_s: float,
                  grasp_callback: Callable[[], Awaitable[Any]] | None = None,
-                 guard: AutopilotGuard | None = None) -> None:
+                 guard: AutopilotGuard | None = None, manipulator: Manipulator | None = None,
+                 arm: ArmTracking | None = None) -> None:
         self.cfg, self.m = cfg, cfg.mission
         self.grasp_p, self.timeouts, self.grasp_hold_s = grasp, timeouts, grasp_hold_s
         self.vehicle, self.clock, self.log = vehicle, clock, mission_log
@@ -92,6 +97,14 @@ class Actuator:
                                              timeout_s=timeouts.command_s)
         self.refused = ""
         self.on_grasp_done: Callable[[], None] | None = None
+        self.manipulator = manipulator
+        self.arm = arm if arm is not None and arm.enabled else None
+        """An arm (None: a fixed tool, the vehicle brought it within the tolerance before
+        GRASP_READY)."""
+        self.gripper_closed = False
+        self.gripper_closed_ns: int | None = None
+        self.tool_body_at_close_m: tuple[float, float, float] | None = None
+        self.grasp_error_at_close_m: float | None = None
 
     def submit(self, name: str, arg: Any = None) -> None:
         self.queue.put_nowait((name, arg))
@@ -113,6 +126,11 @@ class Actuator:
 
     async def run(self) -> None:
         v = self.vehicle
+        manip = self.manipulator
+        if manip is not None and self.arm is not None:  # an arm: home it first
+            if not await self.command("manipulator_start", lambda: manip.start(
+                    timeout_s=self.timeouts.command_s)):
+                self.failsafe_warnings.append("the arm did not start (see the log)")
         await self.guard_autopilot()
         while not self.stopping:
             try:
@@ -149,7 +167,13 @@ class Actuator:
     async def grasp(self) -> None:
         action = self.grasp_p.action
         if action == "gripper":
-            await self.command("grab", self.vehicle.grab)
+            if self.arm is not None and not await self._arm_within_tolerance():
+                return  # not reached: GRASP_READY's timeout ends the flight (on_timeout)
+            self._gripper_closing()
+            manip = self.manipulator
+            close: Callable[[], Awaitable[Any]] = self.vehicle.grab if manip is None else (
+                lambda: manip.close_gripper(timeout_s=self.timeouts.command_s))
+            await self.command("grab", close)
         elif action == "callback" and self.grasp_callback is not None:
             try:
                 await asyncio.wait_for(self.grasp_callback(), timeout=self.timeouts.grasp_ready_s)
@@ -161,6 +185,40 @@ class Actuator:
         self.grasp_done = True
         if self.on_grasp_done is not None:
             self.on_grasp_done()
+
+    async def _arm_within_tolerance(self) -> bool:
+        """Wait (at most ``timeouts.grasp_ready_s``) until the arm's measured tool-to-target
+        error is within ``grasp.tolerance_m``; False when it never was."""
+        assert self.arm is not None
+        tol = self.grasp_p.tolerance_m
+        deadline = self.clock.now_ns() + int(self.timeouts.grasp_ready_s * 1e9)
+        while not self.stopping:
+            err = self.arm.measured_error()
+            if err is not None and err <= tol:
+                self.grasp_error_at_close_m = err
+                return True
+            if self.clock.now_ns() > deadline:
+                break
+            await self.clock.sleep(ARM_CHECK_S)
+        self.log.write("event", source="mission",
+                       text=f"the arm's tool did not come within grasp.tolerance_m={tol:g} m "
+                       "of the target: the gripper stays open")
+        return False
+
+    def _gripper_closing(self) -> None:
+        """Note when the gripper is commanded to close and where the tool is then (the
+        manipulator's read-back; the fixed tool point without one); stop the arm."""
+        self.gripper_closed = True
+        self.gripper_closed_ns = self.clock.now_ns()
+        if self.manipulator is not None:
+            t = self.manipulator.report().tool_body_m
+        else:
+            t = self.cfg.tool_point_m
+        self.tool_body_at_close_m = (float(t[0]), float(t[1]), float(t[2]))
+        self.log.write("gripper", closing=True, tool_body_m=self.tool_body_at_close_m,
+                       measured_error_m=self.grasp_error_at_close_m)
+        if self.arm is not None:
+            self.arm.hold()
 
     async def final(self, action: str) -> None:
         v = self.vehicle

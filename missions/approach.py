@@ -118,6 +118,8 @@ class StatePolicy:
     """Tool-point stability is counted towards ``grasp.stable_frames``."""
     trim: bool = False
     """The grasp pose's integral trim runs."""
+    arm_tracks: bool = False
+    """An arm that moves the tool tracks the grasp point until the gripper closes."""
     rangefinder: bool = False
     """Downward rangefinder readings measure the target's plane."""
     camera_watch: bool = False
@@ -157,7 +159,7 @@ POLICIES: dict[MissionState, StatePolicy] = {
     S.GRASP_READY: StatePolicy(
         cameras=Cameras.FINE, estimator="fine", goal=Goal.GRASP, offboard=True, airborne=True,
         tracks=True, predicts=True, close_range=True, camera_choice="fine", tool_errors=True,
-        grasp_check=True, trim=True, rangefinder=True, camera_watch=True,
+        grasp_check=True, trim=True, arm_tracks=True, rangefinder=True, camera_watch=True,
         timeout_field="grasp_ready_s", on_enter=("grasp",)),
     S.TARGET_LOST: StatePolicy(cameras=Cameras.WIDE, estimator="coarse", goal=Goal.SEARCH,
                                offboard=True, airborne=True, confirms=True, reacquires=True,

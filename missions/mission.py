@@ -222,7 +222,8 @@ class ApproachMission:
                                on_telemetry=on_telemetry, record_all=h.record_all,
                                on_processed=None if h.recorder is None else _to_recorder(
                                    h.recorder),
-                               on_state=h.on_state, autopilot_guard=p.autopilot_guard)
+                               on_state=h.on_state, autopilot_guard=p.autopilot_guard,
+                               manipulator=p.manipulator)
         self.runner = runner
         if self._interrupt is not None:
             runner.interrupt(*self._interrupt)

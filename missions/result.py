@@ -24,6 +24,12 @@ class MissionResult:
     t_end_s: float
     t_grasp_ready_s: float | None = None
     estimated_tool_errors_m: tuple[float, float] | None = None
+    t_gripper_closed_s: float | None = None
+    """When the gripper was commanded to close (None: it was not)."""
+    tool_body_at_close_m: tuple[float, float, float] | None = None
+    """The tool point in body FRD then, as the manipulator read it back."""
+    estimated_grasp_error_m: float | None = None
+    """An arm's measured tool-to-target error when the gripper closed (None: a fixed tool)."""
     latencies_ms: list[float] = field(default_factory=list)
     frames_processed: dict[str, int] = field(default_factory=dict)
     frame_counts: dict[str, dict[str, int]] = field(default_factory=dict)

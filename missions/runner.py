@@ -43,6 +43,7 @@ from eaglemission.missions.approach import (
     final_action,
 )
 from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.arm import ArmTracking
 from eaglemission.missions.camera_pump import CameraPump
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import (
@@ -54,14 +55,14 @@ from eaglemission.missions.perception import (
 from eaglemission.missions.result import MissionResult
 from eaglemission.missions.telemetry_watch import TelemetryWatch
 from eaglemission.missions.tracking import TargetTracking
-from eaglemission.missions.views import project_target
+from eaglemission.missions.views import CameraChoice, project_target
 
 from eaglemission import errors
 from eaglemission.clock import Clock, run_blocking
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel
 from eaglemission.geometry.geofence import inside_geofence
-from eaglemission.interfaces import Camera, Vehicle
+from eaglemission.interfaces import Camera, Manipulator, Vehicle
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.recording.provenance import config_record
 from eaglemission.safety.autopilot_guard import AutopilotGuard
@@ -97,6 +98,7 @@ class MissionRunner:
     on_frame, on_processed : called (loop thread) with every grabbed / processed frame (+ its saliency thumbnail)
     on_state : called with (t_s, new state, reason, failsafe action) on every state change
     autopilot_guard : the assembly's (applied) autopilot-parameter guard; None: its own
+    manipulator : the tool; None: the fixed tool at ``tool_point_m`` (an arm: :mod:`.arm`)
     """
 
     def __init__(self, cfg: MissionFile, params: ApproachConfig, *, vehicle: Vehicle,
@@ -107,7 +109,8 @@ class MissionRunner:
                  on_telemetry: Callable[[VehicleState], None] | None = None, record_all: bool = False,
                  on_processed: Callable[[Frame, Any], None] | None = None,
                  on_state: Callable[[float, str, str, str], None] | None = None,
-                 autopilot_guard: AutopilotGuard | None = None) -> None:
+                 autopilot_guard: AutopilotGuard | None = None,
+                 manipulator: Manipulator | None = None) -> None:
         self.cfg, self.p, self.m = cfg, params, cfg.mission
         self.vehicle: SafeVehicle = (vehicle if isinstance(vehicle, SafeVehicle)
                                      else SafeVehicle(vehicle, cfg.safety, clock=clock))
@@ -124,10 +127,14 @@ class MissionRunner:
                                     perception=params.perception, plane=params.plane,
                                     grasp=params.grasp)
         self.guidance = gd.Guidance(gd.Plan.of(cfg, params.grasp.distance_m), params.guidance)
+        self.arm = ArmTracking.of(manipulator, mission_log, params, state=lambda: (
+            self.telemetry.current(), self.track.arm_target_ned_m(self.clock.now_ns())))
+        self.track.arm = self.arm if self.arm.enabled else None
         self.actuator = Actuator(  # the grasp pose is held for the stable period before leaving
             cfg, self.vehicle, clock, mission_log, self.guidance, grasp=params.grasp,
             timeouts=params.timeouts, grasp_callback=grasp_callback, guard=autopilot_guard,
-            grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz)
+            grasp_hold_s=params.grasp.stable_frames / params.perception.process_rate_hz,
+            manipulator=manipulator, arm=self.arm)
         self.actuator.on_grasp_done = self._wake_machine_now
         self._interrupt: tuple[str, FinalAction] | None = None
         self._watchdog_hold = ""
@@ -196,6 +203,7 @@ class MissionRunner:
         log.info("%.2f s: %s -> %s (%s)", t, old.value, new.value, reason)
         if self.on_state is not None:
             self.on_state(t, new.value, reason, action)
+        self.arm.follow(POLICIES[new].arm_tracks and not self.actuator.gripper_closed)
         for action in POLICIES[new].on_enter:
             getattr(self, f"_enter_{action}")(now)
         self._wake_setpoint.set()
@@ -252,16 +260,7 @@ class MissionRunner:
 
     # -- cameras -------------------------------------------------------------------------------
     def cameras_needed(self) -> set[str]:
-        use = self.policy.cameras
-        if use is Cameras.BOTH:
-            return {CAMERA_WIDE, CAMERA_NARROW}
-        if use is Cameras.WIDE:
-            return {CAMERA_WIDE}
-        if use is Cameras.WIDE_WARMING_NARROW:
-            return {CAMERA_WIDE, CAMERA_NARROW} if self.track.choice.near_narrow else {CAMERA_WIDE}
-        if use is Cameras.FINE:
-            return {self.track.choice.fine_camera}
-        return set()
+        return needed_cameras(self.policy.cameras, self.track.choice)
 
     # -- perception ------------------------------------------------------------------------------
     async def _perception_loop(self) -> None:
@@ -305,6 +304,7 @@ class MissionRunner:
         if applied.fresh:
             self._fresh = (wall, 0.0)
             self._wake_setpoint.set()
+            self.arm.wake.set()
 
     # -- machine -------------------------------------------------------------------------------
     async def _machine_loop(self) -> None:
@@ -375,14 +375,6 @@ class MissionRunner:
             interrupt_action=self._interrupt[1] if self._interrupt else "return")
 
     # -- setpoints -----------------------------------------------------------------------------
-    def _inside_envelope(self, pos: XYZ) -> bool:
-        """The goal is inside the geofence, with the safety envelope's margin (it would clamp
-        the setpoint short of the goal forever)."""
-        env = getattr(self.vehicle, "envelope", None)
-        if env is not None and hasattr(env, "safe_h"):
-            return bool(env.safe_h(float(pos[0]), float(pos[1])))
-        return inside_geofence(self.cfg.safety.geofence, pos[0], pos[1])
-
     async def _setpoint_loop(self) -> None:
         period = 1.0 / self.p.guidance.setpoint_rate_hz
         last_ns = self.clock.now_ns()
@@ -403,7 +395,7 @@ class MissionRunner:
             step = self.guidance.step(pol.goal.name, vs.position_ned_m, vs.yaw_deg,
                                       vs.attitude_q, None if filt is None else filt.position_ned_m,
                                       now, dt, trim=pol.trim)
-            self._goal_ok = self._inside_envelope(step.goal_ned_m)
+            self._goal_ok = inside_envelope(self.vehicle, self.cfg, step.goal_ned_m)
             self._at_standoff = step.at_standoff
             since = self._at_standoff_since_ns
             self._at_standoff_since_ns = (None if not step.at_standoff
@@ -447,7 +439,7 @@ class MissionRunner:
         async def stopper() -> None:
             await self.actuator.finished.wait()
             self._stopping = True
-            self.actuator.stopping = True
+            self.actuator.stopping = self.arm.stopping = True
             self.pump.stopping = True
             self.telemetry.stopping = True
 
@@ -467,6 +459,8 @@ class MissionRunner:
                 tg.create_task(machine_guard())
                 tg.create_task(self._setpoint_loop())
                 tg.create_task(self._perception_loop())
+                if self.arm.enabled:
+                    tg.create_task(self.arm.run())
                 for cam in self.cameras:
                     tg.create_task(self.pump.run(cam))
             completed = True
@@ -479,6 +473,29 @@ class MissionRunner:
                            frame_counts=result.frame_counts, wall_s=round(result.wall_s, 3),
                            completed=completed)
         return result
+
+
+def needed_cameras(use: Cameras, choice: CameraChoice) -> set[str]:
+    """The cameras a state's policy grabs (the camera choice says which is the fine one and
+    whether the target nears the narrow view)."""
+    if use is Cameras.BOTH:
+        return {CAMERA_WIDE, CAMERA_NARROW}
+    if use is Cameras.WIDE:
+        return {CAMERA_WIDE}
+    if use is Cameras.WIDE_WARMING_NARROW:
+        return {CAMERA_WIDE, CAMERA_NARROW} if choice.near_narrow else {CAMERA_WIDE}
+    if use is Cameras.FINE:
+        return {choice.fine_camera}
+    return set()
+
+
+def inside_envelope(vehicle: SafeVehicle, cfg: MissionFile, pos: XYZ) -> bool:
+    """The goal is inside the geofence, with the safety envelope's margin (it would clamp the
+    setpoint short of the goal forever)."""
+    env = getattr(vehicle, "envelope", None)
+    if env is not None and hasattr(env, "safe_h"):
+        return bool(env.safe_h(float(pos[0]), float(pos[1])))
+    return inside_geofence(cfg.safety.geofence, pos[0], pos[1])
 
 
 def configured_limits(cfg: MissionFile, p: ApproachConfig) -> Snapshot:
@@ -506,6 +523,10 @@ def mission_result(r: MissionRunner) -> MissionResult:
         states=r.states, t_start_s=0.0, t_end_s=r._t_s(),
         t_grasp_ready_s=r.t_grasp_ready_s,
         estimated_tool_errors_m=r.track.tool_errors,
+        t_gripper_closed_s=None if act.gripper_closed_ns is None
+        else (act.gripper_closed_ns - r._t0_ns) * 1e-9,
+        tool_body_at_close_m=act.tool_body_at_close_m,
+        estimated_grasp_error_m=act.grasp_error_at_close_m,
         latencies_ms=r.latencies_ms, frames_processed=dict(r._processed),
         frame_counts=r.pump.final_counts(r._processed, final=r.machine.final),
         detections=dict(r._detected), detection_frames=r.detection_frames,

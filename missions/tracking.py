@@ -20,6 +20,7 @@ from eaglemission.missions.approach_config import (
     PlaneConfig,
     TrackingConfig,
 )
+from eaglemission.missions.arm import ArmTracking
 from eaglemission.missions.log import MissionLog
 from eaglemission.missions.perception import FitHint, Measurement
 from eaglemission.missions.target_state import (
@@ -37,6 +38,10 @@ from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel, camera_pose_ned, down_axis_cos_tilt
 from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.types import XYZ, VehicleState
+
+ARM_FIX_MAX_AGE_S = 0.3
+"""An arm aims at the latest fine estimate while it is at most this old (two or three frames
+at the default processing rate), else at the filter's position."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,6 +95,11 @@ class TargetTracking:
         self.drops = 0
         """How often the mission dropped its target (lost, rejected): perception's keepers let
         it go when this changes."""
+        self.latest_fix: tuple[int, XYZ] | None = None
+        """(frame stamp, position) of the latest fine estimate the filter accepted."""
+        self.arm: ArmTracking | None = None
+        """An arm that moves the tool: readiness is the grasp point inside its workspace
+        (:mod:`.arm`); None: the fixed tool's stability count."""
 
     # -- state entries -------------------------------------------------------------------------
     def seed_filter(self, now_ns: int) -> None:
@@ -211,6 +221,15 @@ class TargetTracking:
         filt = self.filter.state(t_ns)
         return None if filt is None else filt.position_ned_m
 
+    def arm_target_ned_m(self, t_ns: int) -> XYZ | None:
+        """What an arm aims at: the latest fine estimate while it is fresh (at most
+        :data:`ARM_FIX_MAX_AGE_S` old: the vehicle's position estimate drifts little since
+        that frame), else the filter's position (None: no target)."""
+        fix = self.latest_fix
+        if fix is not None and 0 <= (t_ns - fix[0]) * 1e-9 <= ARM_FIX_MAX_AGE_S:
+            return fix[1]
+        return self.target_ned_m(t_ns)
+
     # -- measurements --------------------------------------------------------------------------
     def apply(self, meas: Measurement, pol: StatePolicy, vehicle_now: VehicleState,
               now_ns: int, t_s: float) -> Applied:
@@ -276,7 +295,11 @@ class TargetTracking:
                                text=why, response="measurement ignored")
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
-            if accepted and meas.fit_hint is not None and pol.camera_choice == "fine":
+            if accepted and meas.role == "fine":
+                self.latest_fix = (frame.timestamp_ns, pos)
+            if (accepted and meas.fit_hint is not None and pol.camera_choice == "fine"
+                    and not (self.arm is not None and state is not None and det is not None
+                             and self.arm.hides(model, state, det.corners_px))):
                 self.check_shape(meas.fit_hint.yaw_deg, pos, cam_id,
                                  meas.fit_hint.silhouette_iou, meas.fit_hint.silhouette_yaw_deg)
             fresh = accepted
@@ -306,6 +329,13 @@ class TargetTracking:
         h_err, dist = gd.tool_errors(tool, target_ned_m)
         speed = math.sqrt(sum(v * v for v in vs.velocity_ned_mps))
         g = self.grasp_p
+        if self.arm is not None:  # the arm closes the rest: the grasp point within its reach
+            inside = (counting and speed <= g.max_speed_mps
+                      and self.arm.reachable(vs, self.arm_target_ned_m(vs.timestamp_ns)
+                                             or target_ned_m))
+            self.grasp_count = self.grasp_count + 1 if inside else 0
+            self.tool_errors = (h_err, dist)
+            return
         self.grasp_window, self.grasp_count = grasp_progress(
             self.grasp_window, h_err, dist, slow=counting and speed <= g.max_speed_mps,
             grasp_distance_m=g.distance_m, tolerance_m=g.tolerance_m,

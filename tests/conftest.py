@@ -6,7 +6,9 @@ from __future__ import annotations
 import gc
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,12 +24,30 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     marked ``machine`` share one group, so they run one at a time: they use UDP ports, start
     emulator processes or find their child flights in /proc, or talk to a PX4 SITL, which a
     second worker would disturb."""
+    loadgroup = bool(getattr(config.option, "loadgroup", False))  # set on xdist's workers
     for item in items:
-        if item.get_closest_marker("xdist_group") is not None:
-            continue
-        group = (MACHINE_GROUP if item.get_closest_marker("machine") is not None
-                 else item.nodeid.split("::", 1)[0])
-        item.add_marker(pytest.mark.xdist_group(group))
+        marker = item.get_closest_marker("xdist_group")
+        if marker is None:
+            group = (MACHINE_GROUP if item.get_closest_marker("machine") is not None
+                     else item.nodeid.split("::", 1)[0])
+            item.add_marker(pytest.mark.xdist_group(group))
+        else:
+            group = str(marker.args[0] if marker.args else marker.kwargs.get("name", "default"))
+        if loadgroup:
+            _tell_xdist_the_group(item, group)
+
+
+def _tell_xdist_the_group(item: pytest.Item, group: str) -> None:
+    """xdist's workers tell the scheduler an item's group as a ``@group`` suffix of its node
+    id. xdist 3.8 writes the suffix into ``item._nodeid``, which pytest 9.2 no longer reads
+    (the id is the structured ``item._id``; pytest-xdist issue 1386): the groups were then
+    silently ignored and two workers ran the machine modules at once. The suffix is written into
+    the structured id here (once: xdist's own suffix, where it still works, ends the same)."""
+    node_id = getattr(item, "_id", None)
+    parse = getattr(type(node_id), "parse", None)
+    if node_id is None or parse is None or str(node_id).endswith(f"@{group}"):
+        return
+    item._id = parse(f"{node_id}@{group}")
 
 
 def shared_dir() -> Path | None:
@@ -94,3 +114,57 @@ def sitl_config():
     from eaglemission.config import load_config
 
     return load_config(check_plugins=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# PX4 SITL: one test at a time, a fresh instance each when a build is given
+# ---------------------------------------------------------------------------------------------
+PX4_LOCK_TIMEOUT_S = 1800.0
+"""How long a test waits for another user of the machine's PX4 (another test run)."""
+
+
+@dataclass(frozen=True)
+class Px4Sitl:
+    """The PX4 a test flies: where to connect, which simulator, the started instance (None
+    for a PX4 the user runs)."""
+
+    url: str
+    sim: str
+    instance: Any = None
+
+
+@pytest.fixture
+def px4_sitl(tmp_path: Path) -> Iterator[Px4Sitl]:
+    """A PX4 SITL for this test alone. ``EAGLEMISSION_PX4_BUILD`` set: a fresh instance started
+    for the test (``EAGLEMISSION_PX4_SIM`` sih|jmavsim, ``EAGLEMISSION_JMAVSIM_JAR``) and
+    stopped after it; else ``EAGLEMISSION_PX4_URL``: the PX4 the user started, its simulator
+    from EAGLEMISSION_PX4_SIM or its airframe. Skipped when neither is set. The machine's PX4
+    lock is held throughout, so no two tests (workers, runs) fly it at once."""
+    from eaglemission.lab.px4 import sitl
+
+    from eaglemission.names import ENV_PX4_URL
+
+    url = os.environ.get(ENV_PX4_URL)
+    build = os.environ.get(sitl.ENV_PX4_BUILD)
+    if not url and not build:
+        pytest.skip(f"no PX4 SITL: set {ENV_PX4_URL} (a running PX4, e.g. "
+                    f"udpin://0.0.0.0:14540) or {sitl.ENV_PX4_BUILD} (a fresh PX4 per test)")
+    with sitl.machine_lock(PX4_LOCK_TIMEOUT_S):
+        if build:
+            opts = sitl.resolve_options(workdir_parent=tmp_path)
+            instance = sitl.start(opts)
+            try:
+                yield Px4Sitl(url or instance.url, instance.sim, instance)
+            finally:
+                sitl.stop(instance)
+        else:
+            assert url is not None
+            sim = (os.environ.get(sitl.ENV_PX4_SIM) or "").lower()
+            if sim and sim not in sitl.SIMS:
+                pytest.fail(f"{sitl.ENV_PX4_SIM}={sim}: use one of {', '.join(sitl.SIMS)}")
+            if not sim:
+                from eaglemission.lab.px4.probe import airframe_sim
+
+                sim = airframe_sim()
+            yield Px4Sitl(url, sim)
+

@@ -13,3 +13,4 @@ EVENT_FAILOVER = "failover"  # offboard setpoints lost longer than the autopilot
 EVENT_FAULT = "fault"  # a fault was injected (sim only); data: fault, duration_s
 EVENT_TIME_BASE = "time_base"  # a telemetry stamp refused (copy, older) or re-anchored (clock jump); data: problem, stream
 EVENT_WATCHDOG = "watchdog"  # the offboard watchdog commanded HOLD; data: age_s
+EVENT_TRUTH = "truth"  # the ground truth looks wrong (simulators only); data: problem

@@ -300,6 +300,12 @@ class MissionFile(StrictModel):
     estimators: EstimatorsSection
     target: TargetConfig
     tool_point_m: XYZm = (0.0, 0.0, 0.3)
+    """The tool's home point in body FRD: a ``fixed`` tool is there, an arm's workspace is
+    centred on it (docs/manipulators.md)."""
+    manipulator: PluginSection = Field(default_factory=lambda: PluginSection(type="fixed"))
+    """The tool under the vehicle (``eaglemission plugins`` lists the ``manipulators``):
+    ``fixed`` (a rigid tool at ``tool_point_m``, the autopilot's gripper), an arm that closes
+    the last centimetres itself (docs/manipulators.md)."""
     mission: MissionConfig
     safety: SafetyConfig = Field(default_factory=SafetyConfig)
     recording: RecordingConfig | None = None
@@ -414,6 +420,7 @@ def plugin_sections(cfg: MissionFile) -> list[tuple[str, str, str, dict[str, Any
         *([("fitters", "estimators.fitter", cfg.estimators.fitter.type,
             cfg.estimators.fitter.params)] if cfg.estimators.fitter is not None else []),
         ("missions", "mission", cfg.mission.type, cfg.mission.params),
+        ("manipulators", "manipulator", cfg.manipulator.type, cfg.manipulator.params),
         *([("trackers", "tracker", cfg.tracker.type, cfg.tracker.params)]
           if cfg.tracker is not None else []),
         *([("worlds", "world", cfg.world.type, cfg.world.params)]

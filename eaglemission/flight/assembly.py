@@ -35,6 +35,7 @@ from eaglemission.interfaces import (
     FlightParts,
     GroundTruth,
     Judge,
+    Manipulator,
     PlaneFitter,
     Section,
     Tracker,
@@ -141,6 +142,7 @@ class Assembly:
     appearance: TargetAppearance | None = None
     keepers: dict[str, TargetKeeper] = field(default_factory=dict)
     guard: AutopilotGuard | None = None
+    manipulator: Manipulator | None = None
     sections: list[Section] = field(default_factory=list)
     """The section plugins of the mission file's extra sections (``faults``), attached."""
 
@@ -148,8 +150,9 @@ class Assembly:
         return FlightParts(config=self.config, clock=self.clock, vehicle=self.vehicle,
                            cameras=self.cameras, detectors=self.detectors, coarse=self.coarse,
                            fine=self.fine, fitter=self.fitter, appearance=self.appearance,
-                           keepers=self.keepers,
-                           judge=self.judge(), realtime=realtime, autopilot_guard=self.guard)
+                           keepers=self.keepers, judge=self.judge(),
+                           manipulator=self.manipulator, realtime=realtime,
+                           autopilot_guard=self.guard)
 
     def judge(self) -> Judge | None:
         """The judge of the mission's type (:mod:`eaglemission.interfaces.judge`) with the
@@ -278,8 +281,12 @@ def assemble(cfg: MissionFile, clock: Clock, *,
     fs = cfg.estimators.fitter
     fitter = None if fs is None else registry.load("fitters", fs.type, fs.params,
                                                    target=cfg.target)
+    manipulator: Manipulator = registry.load(
+        "manipulators", cfg.manipulator.type, cfg.manipulator.params, vehicle=safe, clock=clock,
+        tool_point_m=cfg.tool_point_m, shared=shared)
     asm = Assembly(cfg, clock, driver, safe, cameras, detectors, coarse, fine, shared, pose,
                    fitter=fitter, appearance=appearance, keepers=keepers,
+                   manipulator=manipulator,
                    sections=sections)
     for section in sections:
         section.attach(asm)  # e.g. wraps the parts injected faults live in
@@ -308,6 +315,8 @@ def header_lines(asm: Assembly, *, virtual: bool) -> list[str]:
     lines.append(f"detector: {cfg.detector.type} {dict(cfg.detector.params) or ''}".rstrip())
     lines.append(f"estimators: coarse {cfg.estimators.coarse.type}, "
                  f"fine {cfg.estimators.fine.type}")
+    if asm.manipulator is not None:
+        lines.append(f"manipulator: {describe_part(asm.manipulator, cfg.manipulator.type)}")
     lines.append(f"mission: {cfg.mission.type}")
     lines.append("clock: " + ("virtual time (faster than real time)" if virtual
                               else "wall clock (real time)"))

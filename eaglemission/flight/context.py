@@ -16,6 +16,9 @@ T = TypeVar("T")
 
 WORLD = "world"
 """Key of the synthetic world (``eaglemission.lab.world.render.SyntheticWorld``)."""
+MANIPULATOR = "manipulator"
+"""Key of the flight's manipulator when a fake camera should draw it (the lab's simulated
+arm registers itself: ``tool_body_at(timestamp_ns)``)."""
 REPLAY_EPOCH_NS = "replay_epoch_ns"
 """Key of a replay's time offset: clock time minus recorded time, ns."""
 

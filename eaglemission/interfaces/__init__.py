@@ -5,6 +5,7 @@ from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import CameraView, Estimator
 from eaglemission.interfaces.fitter import PlaneFitter
 from eaglemission.interfaces.judge import Judge, Verdict
+from eaglemission.interfaces.manipulator import Manipulator, ToolReport
 from eaglemission.interfaces.mission import (
     FlightParts,
     FlightRecorder,
@@ -19,5 +20,5 @@ from eaglemission.interfaces.vehicle import Vehicle
 from eaglemission.interfaces.world import World
 
 __all__ = ["Camera", "CameraView", "Detector", "Estimator", "FlightParts", "FlightRecorder",
-           "GroundTruth", "Judge", "Mission", "MissionHooks", "MissionOutcome", "PlaneFitter",
-           "Section", "Tracker", "Vehicle", "Verdict", "World"]
+           "GroundTruth", "Judge", "Manipulator", "Mission", "MissionHooks", "MissionOutcome",
+           "PlaneFitter", "Section", "ToolReport", "Tracker", "Vehicle", "Verdict", "World"]

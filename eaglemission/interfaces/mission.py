@@ -13,6 +13,7 @@ from eaglemission.interfaces.detector import Detector
 from eaglemission.interfaces.estimator import Estimator
 from eaglemission.interfaces.fitter import PlaneFitter
 from eaglemission.interfaces.judge import Judge
+from eaglemission.interfaces.manipulator import Manipulator
 from eaglemission.interfaces.vehicle import Vehicle
 
 if TYPE_CHECKING:
@@ -45,6 +46,9 @@ class FlightParts:
     """Per camera, what keeps the confirmed target between the detector's frames (empty: the
     detector on every frame alone)."""
     judge: Judge | None = None
+    manipulator: Manipulator | None = None
+    """The tool (``manipulator`` section); None: a fixed tool at ``tool_point_m`` and the
+    vehicle's gripper."""
     realtime: bool = False
     autopilot_guard: Any = None
     """The assembly's :class:`~eaglemission.safety.autopilot_guard.AutopilotGuard` (already applied:

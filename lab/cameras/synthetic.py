@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from eaglemission.clock import Clock, MonotonicClock
 from eaglemission.config import MissionFile, TargetConfig
 from eaglemission.errors import ConfigError, GrabTimeout
-from eaglemission.flight.context import WORLD, SharedContext
+from eaglemission.flight.context import MANIPULATOR, WORLD, SharedContext
 from eaglemission.geometry import CameraModel, R_to_quat, quat_to_R, rotation_from_vector
 from eaglemission.types import XYZ, Frame, Quat
 
@@ -79,6 +79,7 @@ class SyntheticCamera:
                 "callable host-time -> (position_ned_m, attitude_q) of the TRUE vehicle pose")
         self.world = world
         self.pose_source = pose_source
+        self._shared = shared
         self.time_offset_ns = int(round(world.simulation.camera_time_offset_s * 1e9))
         self.seq = 0
         self._open = False
@@ -144,8 +145,10 @@ class SyntheticCamera:
         start = None
         if self.world.simulation.motion_blur:
             start = self._exposure_start_pose(render_ns, position, attitude, float(exposure))
+        arm = None if self._shared is None else self._shared.get(MANIPULATOR)
+        tool = None if arm is None else arm.tool_body_at(render_ns)
         image, truth = self.world.render(self.model, position, attitude, render_ns,
-                                         exposure_start_pose=start)
+                                         exposure_start_pose=start, tool_body_m=tool)
         with self._lock:
             self.seq += 1
             seq = self.seq

@@ -27,9 +27,11 @@ from eaglemission.lab.campaign.emulator import VEHICLES
 from eaglemission.lab.campaign.executors import Executor, make_executor
 from eaglemission.lab.campaign.faults import judge, with_drawn_fault
 from eaglemission.lab.campaign.resume import RunStore
+from eaglemission.lab.evaluation.evaluator import GRASPED_WITHIN_M
 from eaglemission.lab.faults.config import faults_of
 
 from eaglemission.config import MissionFile, load_config
+from eaglemission.config.models import validate_mapping
 from eaglemission.flight.assembly import build_world
 
 
@@ -59,6 +61,14 @@ def randomise(cfg: MissionFile, rng: np.random.RandomState,
                                                   float(g.uniform(-30, 30)))}
     return MissionFile.model_validate(
         {**cfg.model_dump(), "world": {"type": cfg.world.type, "params": params}})
+
+
+def with_manipulator(cfg: MissionFile, kind: str) -> MissionFile:
+    """``cfg`` flown with the manipulator ``kind`` (its params kept when it is already that
+    type, else the plugin's defaults); the world's draws do not depend on it."""
+    params = dict(cfg.manipulator.params) if cfg.manipulator.type == kind else {}
+    data = {**cfg.model_dump(), "manipulator": {"type": kind, "params": params}}
+    return validate_mapping(data, source=f"--manipulator {kind}")
 
 
 def crash_explanation(exc: BaseException) -> str:
@@ -101,6 +111,10 @@ def _one_run(job: tuple[Any, ...]) -> dict[str, Any]:
             "reason": ev.reason, "action": ev.action, "ended_safe": ev.ended_safe,
             "landed": ev.landed, "time_to_grasp_ready_s": ev.time_to_grasp_ready_s,
             "horizontal_error_m": ev.horizontal_error_m, "grasp_distance_m": ev.grasp_distance_m,
+            "gripper_closed": ev.gripper_closed, "grasped": ev.grasped,
+            "grasp_error_m": ev.grasp_error_m,
+            "grasp_error_horizontal_m": ev.grasp_error_horizontal_m,
+            "vehicle_error_m": ev.vehicle_error_m,
             "violations": [v.__dict__ for v in ev.violations], "explanation": ev.explanation,
             "speedup": out.speedup, "latency_p90_ms": out.result.latency_p90_ms,
             "sim": cfg.world.params if cfg.world else None,
@@ -120,6 +134,11 @@ class CampaignSummary:
         return sum(r["success"] for r in self.runs) / self.n if self.n else math.nan
 
     @property
+    def grasped(self) -> int:
+        """Runs whose gripper closed with the true tool within 2.5 cm of the grasp point."""
+        return sum(bool(r.get("grasped")) for r in self.runs)
+
+    @property
     def violations(self) -> int:
         return sum(len(r.get("violations", [])) for r in self.runs)
 
@@ -127,8 +146,8 @@ class CampaignSummary:
         return [float(r[key]) for r in self.runs if r.get(key) is not None]
 
     def as_dict(self) -> dict[str, Any]:
-        return {"n": self.n, "success_rate": self.success_rate, "violations": self.violations,
-                "runs": self.runs}
+        return {"n": self.n, "success_rate": self.success_rate, "grasped": self.grasped,
+                "violations": self.violations, "runs": self.runs}
 
 
 def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
@@ -139,7 +158,8 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
                  ground_images: list[Path] | None = None,
                  vehicle: str = "simulated",
                  only_faults: set[str] | None = None,
-                 imaging_effects: bool = True) -> CampaignSummary:
+                 imaging_effects: bool = True,
+                 manipulator: str | None = None) -> CampaignSummary:
     """Fly ``runs`` randomised runs on ``executor`` (``local``, ``ray`` or an
     :class:`~eaglemission.lab.campaign.executors.Executor`); with ``out_dir`` each finished
     run is stored there and a rerun flies only the missing ones
@@ -148,10 +168,13 @@ def run_campaign(config: str | None, *, runs: int, seed: int, workers: int = 2,
     ``vehicle``: ``simulated`` (virtual time) or ``emulator`` (real time through MAVSDK,
     :mod:`.campaign_emulator`). ``only_faults``: fly only the runs whose drawn fault is one of
     these (the same draws: the runs a change to those faults' path can alter).
-    ``imaging_effects=False``: the worlds without the drawn imaging effects (:func:`randomise`)."""
+    ``imaging_effects=False``: the worlds without the drawn imaging effects (:func:`randomise`).
+    ``manipulator``: fly every run with this manipulator type (:func:`with_manipulator`)."""
     if vehicle not in VEHICLES:
         raise ValueError(f"vehicle: {vehicle!r} is not one of {', '.join(VEHICLES)}")
     base = load_config(config)
+    if manipulator is not None:
+        base = with_manipulator(base, manipulator)
     rng = np.random.RandomState(seed)
     jobs = []
     for i in range(runs):
@@ -215,12 +238,18 @@ def print_summary(summary: CampaignSummary) -> None:
     c = console()
     c.print(f"[bold]runs[/bold]: {summary.n}   [bold]success[/bold]: "
             f"{summary.success_rate:.0%}   [bold]envelope violations[/bold]: {summary.violations}")
+    closed = sum(bool(r.get("gripper_closed")) for r in summary.runs)
+    c.print(f"[bold]grasped[/bold] (gripper closed, true tool within "
+            f"{GRASPED_WITHIN_M * 100:g} cm of the grasp point): {summary.grasped}/{summary.n}"
+            f"   gripper closed: {closed}/{summary.n}")
     t = Table(title="distribution over runs that reached GRASP_READY")
     for col in ("quantity", "min", "median", "p90", "max"):
         t.add_column(col)
     for key, label, k in (("time_to_grasp_ready_s", "time to GRASP_READY (s)", 1.0),
                           ("horizontal_error_m", "tool-point horizontal error (cm)", 100.0),
                           ("grasp_distance_m", "grasp distance (m)", 1.0),
+                          ("grasp_error_m", "tool-to-target at the grasp (cm)", 100.0),
+                          ("vehicle_error_m", "vehicle's own error at the grasp (cm)", 100.0),
                           ("speedup", "speed-up (x real time)", 1.0),
                           ("latency_p90_ms", "latency p90 (ms)", 1.0)):
         v = np.asarray(summary.values(key)) * k

@@ -37,6 +37,9 @@ def _add_campaign(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", choices=("simulated", "emulator"), default="simulated",
                    help="simulated: virtual time; emulator: each run in real time through "
                    "MAVSDK against its own `sitl-vehicle` process, link faults on its UDP path")
+    p.add_argument("--manipulator", metavar="TYPE", default=None,
+                   help="fly every run with this manipulator instead of the file's (e.g. fixed "
+                   "or simulated_arm: the same draws, another tool)")
     p.add_argument("--no-imaging-effects", action="store_true",
                    help="keep the mission file's white balance, motion blur, Bayer and JPEG "
                    "settings instead of drawing them (the worlds of campaigns flown before "
@@ -76,6 +79,7 @@ def _campaign(args: argparse.Namespace) -> int:
     from eaglemission.lab.campaign.resume import CampaignResumeError
 
     from eaglemission import extras
+    from eaglemission.errors import ConfigError, PluginError
 
     if args.runs < 1:
         print("error: --runs must be >= 1", file=sys.stderr)
@@ -116,10 +120,11 @@ def _campaign(args: argparse.Namespace) -> int:
                                    workers=args.workers, out_dir=args.out, progress=True,
                                    executor=args.executor, address=args.address, faults=kinds,
                                    ground_images=ground_images, vehicle=args.vehicle,
-                                   imaging_effects=not args.no_imaging_effects)
+                                   imaging_effects=not args.no_imaging_effects,
+                                   manipulator=args.manipulator)
     except KeyboardInterrupt:
         return _interrupted(args.out)
-    except (CampaignExecutorError, CampaignResumeError) as exc:
+    except (CampaignExecutorError, CampaignResumeError, ConfigError, PluginError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print_summary(summary)

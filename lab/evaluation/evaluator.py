@@ -4,7 +4,9 @@ synthetic world's target). Separate from the mission, which never sees truth.
 It computes, for one flight: success (GRASP_READY reached with the TRUE tool point within the
 configured grasp tolerance of the true grasp pose), the final tool-point error (horizontal, and
 the grasp distance = height of the tool point above the target's true top face), the time to
-GRASP_READY, and envelope violations over the whole flight (takeoff, route, approach, return):
+GRASP_READY, the true tool-to-target error when the gripper closed (the tool where the
+manipulator read it back, on the true vehicle pose; "grasped" only within
+:data:`GRASPED_WITHIN_M`) with the vehicle's own error then, and envelope violations over the whole flight (takeoff, route, approach, return):
 altitude band, horizontal and vertical speed, geofence.
 """
 
@@ -23,6 +25,10 @@ from eaglemission.missions.result import MissionResult
 from eaglemission.config import MissionFile
 from eaglemission.geometry.geofence import inside_geofence
 from eaglemission.types import VehicleState
+
+GRASPED_WITHIN_M = 0.025
+"""A closed gripper grasped the target when the true tool point was within this distance (3-D)
+of the grasp point (``grasp.distance_m`` above the target's top-face centre)."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +72,15 @@ class Evaluation:
     """The states judged (true ones when ``judged_on == "truth"``)."""
     target_position_ned_m: tuple[float, float, float] | None = None
     """The target's true top-face centre, when a world knows it."""
+    gripper_closed: bool = False
+    grasp_error_m: float | None = None
+    """True distance (3-D) from the tool point to the grasp point when the gripper closed."""
+    grasp_error_horizontal_m: float | None = None
+    vehicle_error_m: float | None = None
+    """The vehicle's own error then: the home tool point (``tool_point_m``) from the grasp
+    point, 3-D (what a fixed tool would have missed by)."""
+    grasped: bool = False
+    """The gripper closed with ``grasp_error_m`` within :data:`GRASPED_WITHIN_M` (on truth)."""
 
     def as_dict(self) -> dict[str, Any]:
         from eaglemission.missions.log import to_jsonable
@@ -81,6 +96,16 @@ class Evaluation:
         if self.horizontal_error_m is not None and self.grasp_distance_m is not None:
             out.append(f"{basis} tool-point error: horizontal {self.horizontal_error_m * 100:.1f} "
                        f"cm, grasp distance {self.grasp_distance_m:.3f} m")
+        if self.gripper_closed and self.grasp_error_m is not None:
+            veh = "" if self.vehicle_error_m is None else \
+                f"; the vehicle's own error {self.vehicle_error_m * 100:.1f} cm"
+            out.append(f"{basis} tool-to-target error when the gripper closed: "
+                       f"{self.grasp_error_m * 100:.1f} cm (horizontal "
+                       f"{(self.grasp_error_horizontal_m or 0.0) * 100:.1f} cm){veh}: "
+                       + ("grasped" if self.grasped else
+                          f"not grasped (> {GRASPED_WITHIN_M * 100:.1f} cm)"))
+        elif not self.gripper_closed:
+            out.append("gripper: not closed")
         out.append(f"envelope violations ({'true' if truth else 'reported'} trajectory): "
                    f"{len(self.violations)}" + "".join(
                        f"\n  {v.kind} at {v.t_s:.1f} s: {v.value:.2f} > {v.limit:.2f} for "
@@ -178,13 +203,20 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
     grasp = ApproachConfig.of(cfg).grasp
     h_err = dist = None
     t_gr = result.t_grasp_ready_s
+    t_close, body_close = _closed(result)
+    arm_closed = (getattr(result, "estimated_grasp_error_m", None) is not None
+                  and t_close is not None and body_close is not None)
     if t_gr is not None and traj and target_position_ned_m is not None:
-        st = _state_at(traj, t0_ns + int(t_gr * 1e9))
-        tool = tool_point_ned(st.position_ned_m, st.attitude_q, cfg.tool_point_m)
+        # a fixed tool: its point at GRASP_READY; an arm: where it held the tool at the close
+        t_tool = t_close if arm_closed and t_close is not None else t_gr
+        st = _state_at(traj, t0_ns + int(t_tool * 1e9))
+        body = body_close if arm_closed and body_close is not None else cfg.tool_point_m
+        tool = tool_point_ned(st.position_ned_m, st.attitude_q, body)
         h_err, dist = tool_errors(tool, target_position_ned_m)
     elif t_gr is not None and result.estimated_tool_errors_m is not None:
         # no known target (a real flight, a replay): the mission's own estimate is all there is
         h_err, dist = result.estimated_tool_errors_m
+    closed = grasp_at_close(result, traj, cfg, target_position_ned_m, t0_ns=t0_ns)
     within = (h_err is not None and dist is not None and h_err <= tolerances.grasp_horizontal_m
               and abs(dist - grasp.distance_m) <= grasp.tolerance_m)
     violations = envelope_violations(traj, cfg, t0_ns, tolerances) if traj else []
@@ -214,4 +246,34 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
         reached_grasp_ready=t_gr is not None, final_state=result.final_state,
         reason=result.reason, action=result.action, time_to_grasp_ready_s=t_gr,
         horizontal_error_m=h_err, grasp_distance_m=dist, violations=violations,
-        ended_safe=ended_safe, landed=landed, explanation=explanation)
+        ended_safe=ended_safe, landed=landed, explanation=explanation,
+        gripper_closed=t_close is not None, **closed)
+
+
+def _closed(result: MissionResult) -> tuple[float | None, tuple[float, float, float] | None]:
+    """When the gripper closed and the tool's body point then (None: it did not close)."""
+    return (getattr(result, "t_gripper_closed_s", None),
+            getattr(result, "tool_body_at_close_m", None))
+
+
+def grasp_at_close(result: MissionResult, traj: Sequence[VehicleState], cfg: MissionFile,
+                   target_position_ned_m: Sequence[float] | None, *, t0_ns: int
+                   ) -> dict[str, Any]:
+    """The true tool-to-target error when the gripper closed: the tool point the manipulator
+    read back (body FRD) on the TRUE vehicle pose then, against the true grasp point; and the
+    vehicle's own error (the home tool point). Empty when the gripper did not close or nothing
+    knows the target."""
+    t_c, tool_body = _closed(result)
+    if t_c is None or tool_body is None or not traj or target_position_ned_m is None:
+        return {}
+    st = _state_at(traj, t0_ns + int(t_c * 1e9))
+    grasp_distance = ApproachConfig.of(cfg).grasp.distance_m
+    goal = np.array([target_position_ned_m[0], target_position_ned_m[1],
+                     target_position_ned_m[2] - grasp_distance])
+    tool = np.asarray(tool_point_ned(st.position_ned_m, st.attitude_q, tool_body))
+    home = np.asarray(tool_point_ned(st.position_ned_m, st.attitude_q, cfg.tool_point_m))
+    err = float(np.linalg.norm(tool - goal))
+    return {"grasp_error_m": err,
+            "grasp_error_horizontal_m": float(np.hypot(*(tool - goal)[:2])),
+            "vehicle_error_m": float(np.linalg.norm(home - goal)),
+            "grasped": err <= GRASPED_WITHIN_M}

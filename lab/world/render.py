@@ -14,7 +14,8 @@ Rendering (docs/cameras.md, "Synthetic world"):
    free of aliasing at 15 m with the 2.8 mm lens;
 2. sky: pixels whose ray points at or above the horizon;
 3. boxes, discs and stripes: their visible faces projected and filled (Lambert shading with a
-   seed-chosen sun), painted far to near;
+   seed-chosen sun), painted far to near; then a simulated arm's gripper under the body, when
+   the flight has one (its tool point in body FRD);
 4. motion blur (``motion_blur``: along the image motion during the exposure), lighting gain
    x white balance, lens distortion (if the model has any: the pinhole render is remapped),
    additive Gaussian noise from a pre-drawn bank, Bayer mosaic + demosaic (``bayer_pattern``),
@@ -89,6 +90,11 @@ __all__ = ["BGRA_LEVEL_BUDGET_BYTES", "DEFAULT_TARGET_BGR", "SKY_HORIZON_BGR", "
 
 DEFAULT_TARGET_BGR = (30, 40, 210)
 SHADOW_FACTOR = 0.55  # ground brightness in a box's cast shadow (ambient light only)
+ARM_SLIDE_M = 0.06  # the visible end of the arm's Z slide above the gripper block
+ARM_ROD_M = 0.015  # the slide's square section
+ARM_BLOCK_M = 0.04  # the gripper block's side, centred on the tool point
+ARM_ROD_BGR = (45, 45, 45)
+ARM_BLOCK_BGR = (90, 90, 90)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -318,7 +324,8 @@ class SyntheticWorld:
     # -- rendering ---------------------------------------------------------------------------
     def render(self, model: CameraModel, position_ned_m: Sequence[float],
                attitude_q: Sequence[float], timestamp_ns: int, *,
-               exposure_start_pose: tuple[Sequence[float], Sequence[float]] | None = None
+               exposure_start_pose: tuple[Sequence[float], Sequence[float]] | None = None,
+               tool_body_m: Sequence[float] | None = None
                ) -> tuple[NDArray[np.uint8], GroundTruth]:
         """Render what ``model`` sees from a vehicle at ``position_ned_m`` with attitude
         ``attitude_q`` (body FRD -> NED), with the world as it is at ``timestamp_ns``.
@@ -328,6 +335,9 @@ class SyntheticWorld:
         along twice the image motion between the two poses of the scene point on the
         principal-point pixel, centred on the mid-exposure image (constant velocity and
         angular rate over the exposure; :mod:`.imaging`).
+
+        ``tool_body_m``: an arm's tool point in body FRD (a simulated manipulator): the arm is
+        drawn under the body: a small grey gripper block on the end of a dark Z slide.
 
         Returns the BGR image (H, W, 3) uint8 and its :class:`GroundTruth` (``timestamp_ns``
         and ``render_time_ns`` both set to ``timestamp_ns``).
@@ -340,6 +350,8 @@ class SyntheticWorld:
         self._render_ground(img, ctx.K_true, R_on, C)
         self._render_sky(img, ctx.K_true, R_no)
         self._render_objects(img, ctx.K_true, R_on, C, int(timestamp_ns))
+        if tool_body_m is not None:
+            self._render_arm(img, ctx.K_true, R_on, C, position_ned_m, attitude_q, tool_body_m)
         sim = self.simulation
         blur = (0.0, 0.0)
         if sim.motion_blur and exposure_start_pose is not None:
@@ -415,6 +427,28 @@ class SyntheticWorld:
                     continue  # back face
                 colour = self.face_colour(obj.colour_bgr, n_ned)
                 self._fill_face(img, K, R_on, C, v_ned, colour, W, H)
+
+    def _render_arm(self, img: NDArray[np.uint8], K: NDArray[np.float64],
+                    R_on: NDArray[np.float64], C: NDArray[np.float64],
+                    position_ned_m: Sequence[float], attitude_q: Sequence[float],
+                    tool_body_m: Sequence[float]) -> None:
+        """A simulated arm's end in body FRD: the gripper block around the tool point and the
+        end of the Z slide above it (the arm's stage sits behind the cameras, out of view).
+        Nearer than anything on the ground, so drawn last, the slide first."""
+        H, W = img.shape[:2]
+        R_nb = quat_to_R(attitude_q)
+        p = np.asarray(position_ned_m, dtype=np.float64)
+        tx, ty, tz = (float(v) for v in tool_body_m)
+        parts = (((tx, ty, tz - ARM_BLOCK_M / 2 - ARM_SLIDE_M), ARM_ROD_M, ARM_SLIDE_M,
+                  ARM_ROD_BGR),
+                 ((tx, ty, tz - ARM_BLOCK_M / 2), ARM_BLOCK_M, ARM_BLOCK_M, ARM_BLOCK_BGR))
+        for top, side, height, colour in parts:
+            for verts, nrm in box_faces(side, side, height):
+                v_ned = (verts + np.asarray(top)) @ R_nb.T + p
+                n_ned = R_nb @ nrm
+                if float(n_ned @ (C - v_ned[0])) <= 0.0:
+                    continue
+                self._fill_face(img, K, R_on, C, v_ned, self.face_colour(colour, n_ned), W, H)
 
     def shadow_polygon_ned(self, obj_faces: Sequence[tuple[NDArray[np.float64],
                                                            NDArray[np.float64]]],

@@ -36,7 +36,8 @@ yaml_values = st.recursive(yaml_scalars, lambda inner: st.lists(inner, max_size=
 
 def test_the_shipped_files_pass_except_the_replay_without_its_recording() -> None:
     got = {p.name: check_document(copy.deepcopy(d)) for p, d in zip(CONFIG_FILES, DOCS)}
-    assert got == {"field_basler_px4.yaml": "valid", "px4_sitl.yaml": "valid",
+    assert got == {"field_basler_px4.yaml": "valid", "px4_jmavsim.yaml": "valid",
+                   "px4_sitl.yaml": "valid",
                    "replay.yaml": "refused", "sitl_synthetic.yaml": "valid"}
 
 

@@ -7,6 +7,11 @@ always 0 (samples are stamped on receipt), ``lat``/``lon`` degE7 and ``alt`` mm 
 true position, ``vx``/``vy``/``vz`` cm/s the true NED velocity, ``attitude_quaternion`` the true
 attitude (w may be negative). A real aircraft sends none.
 
+With jMAVSim, PX4 passes on what jMAVSim sends: ``alt`` is 1000 x its NED z (0 on the ground,
+-3000 at 3 m up), not AMSL, so the driver's ``ground_truth_altitude: ned_z`` reads it as minus
+the height; its ``lat``/``lon`` are jMAVSim's simulated GPS position (the true one plus a
+correlated noise of about 1 cm per axis); velocity and attitude are true.
+
 :class:`HilTruth` turns the samples into NED metres relative to the first sample (the true
 start point, where the synthetic world's origin is: the vehicle is on the ground when the
 mission connects) and implements :class:`~eaglemission.interfaces.truth.GroundTruth`.
@@ -27,15 +32,24 @@ from eaglemission.types import XYZ, FlightMode, GeoPoint, Quat, VehicleState
 
 MSG_ID = 115
 MAX_EXTRAPOLATION_NS = 100_000_000
+ALTITUDES = ("amsl", "ned_z")
+"""What ``alt`` holds: the altitude above mean sea level, or the simulator's NED z (down)."""
+CHECK_TRAVEL_M = 1.0
+"""Vertical travel (integrated from the messages' own vertical velocity) after which the
+altitude's sense is judged: a take-off climbs further than this."""
+MAX_CHECK_GAP_S = 0.5
 
 
-def parse_hil_state(fields: dict[str, Any]) -> tuple[GeoPoint, XYZ, Quat]:
+def parse_hil_state(fields: dict[str, Any], altitude: str = "amsl"
+                    ) -> tuple[GeoPoint, XYZ, Quat]:
     """(true position, NED velocity m/s, attitude (w, x, y, z) with w >= 0) of one message's
-    fields; raises ValueError on a missing or non-finite field."""
+    fields; raises ValueError on a missing or non-finite field. With ``altitude="ned_z"`` the
+    position's altitude is minus ``alt`` (the height above the simulator's origin)."""
+    sense = -1.0 if altitude == "ned_z" else 1.0
     try:
         q = [float(v) for v in fields["attitude_quaternion"]]
         geo = GeoPoint(float(fields["lat"]) * 1e-7, float(fields["lon"]) * 1e-7,
-                       float(fields["alt"]) * 1e-3)
+                       sense * float(fields["alt"]) * 1e-3)
         vel = (float(fields["vx"]) * 0.01, float(fields["vy"]) * 0.01, float(fields["vz"]) * 0.01)
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"HIL_STATE_QUATERNION: malformed fields ({exc})") from exc
@@ -50,17 +64,62 @@ def parse_hil_state(fields: dict[str, Any]) -> tuple[GeoPoint, XYZ, Quat]:
     return geo, vel, (sign * q[0] / n, sign * q[1] / n, sign * q[2] / n, sign * q[3] / n)
 
 
+class AltitudeSense:
+    """Does the altitude read from the messages move with their own vertical velocity?
+
+    Over consecutive samples, the height change is compared with the climb the velocity gives
+    (``-vz * dt``); once :data:`CHECK_TRAVEL_M` of vertical travel has accumulated, the sign of
+    their sum of products is the verdict (True: they agree). A wrong ``ground_truth_altitude``
+    makes them disagree on every step of a take-off.
+    """
+
+    def __init__(self, travel_m: float = CHECK_TRAVEL_M) -> None:
+        self.travel_m = travel_m
+        self.travelled_m = 0.0
+        self._dot = 0.0
+        self._last: tuple[float, float, float] | None = None
+        self.verdict: bool | None = None
+
+    def add(self, t_s: float, height_m: float, climb_mps: float) -> bool | None:
+        """One sample; returns the verdict on the sample that decides it, else None."""
+        last, self._last = self._last, (t_s, height_m, climb_mps)
+        if self.verdict is not None or last is None:
+            return None
+        dt = t_s - last[0]
+        if not 0.0 < dt <= MAX_CHECK_GAP_S:
+            return None
+        climb_m = 0.5 * (climb_mps + last[2]) * dt
+        self._dot += (height_m - last[1]) * climb_m
+        self.travelled_m += abs(climb_m)
+        if self.travelled_m < self.travel_m:
+            return None
+        self.verdict = self._dot > 0.0
+        return self.verdict
+
+
 class HilTruth:
     """Thread-safe record of true states from HIL_STATE_QUATERNION samples.
 
     ``flags()`` gives (armed, in_air, mode) from the autopilot's telemetry at the time of a
-    sample (the truth message has none; the evaluator needs them).
+    sample (the truth message has none; the evaluator needs them). ``altitude`` says what the
+    messages' ``alt`` holds (:data:`ALTITUDES`); ``on_problem`` is told, once, when the altitude
+    moves against the messages' vertical velocity (:class:`AltitudeSense`).
     """
 
     description = "HIL_STATE_QUATERNION from the autopilot (simulator ground truth)"
 
     def __init__(self, flags: Callable[[], tuple[bool, bool, FlightMode]] | None = None,
-                 max_s: float = 7200.0, rate_hz: float = 50.0) -> None:
+                 max_s: float = 7200.0, rate_hz: float = 50.0, *, altitude: str = "amsl",
+                 on_problem: Callable[[str], None] | None = None) -> None:
+        if altitude not in ALTITUDES:
+            raise ValueError(f"altitude {altitude!r}: use one of {', '.join(ALTITUDES)}")
+        self.altitude = altitude
+        if altitude == "ned_z":
+            self.description = ("HIL_STATE_QUATERNION from the autopilot (simulator ground "
+                                "truth; alt read as NED z)")
+        self._on_problem = on_problem
+        self.sense = AltitudeSense()
+        self.problem: str | None = None
         self._flags = flags or (lambda: (False, False, FlightMode.UNKNOWN))
         self._lock = threading.Lock()
         self.origin: GeoPoint | None = None
@@ -74,17 +133,19 @@ class HilTruth:
     def on_message(self, stamp_ns: int, fields_json: str) -> None:
         """A received message (MAVSDK's thread), stamped on receipt."""
         try:
-            geo, vel, q = parse_hil_state(json.loads(fields_json))
+            geo, vel, q = parse_hil_state(json.loads(fields_json), self.altitude)
         except (ValueError, RecursionError):  # JSONDecodeError is a ValueError
             self.errors += 1
             return
         self.add(stamp_ns, geo, vel, q)
 
     def add(self, stamp_ns: int, geo: GeoPoint, vel: XYZ, q: Quat) -> None:
+        """A parsed sample (altitude already read as ``self.altitude`` says)."""
         armed, in_air, mode = self._flags()
         with self._lock:
             if self._t and stamp_ns <= self._t[-1]:
                 return
+            verdict = self.sense.add(stamp_ns * 1e-9, geo.altitude_amsl_m, -vel[2])
             if self.origin is None:
                 self.origin = geo
             n, e, d = geodetic_to_ned(self.origin, geo)
@@ -100,6 +161,18 @@ class HilTruth:
                     del col[:k]
                 del self._f[:k]
                 del self._modes[:k]
+        if verdict is False:
+            self._report_wrong_altitude()
+
+    def _report_wrong_altitude(self) -> None:
+        other = "ned_z" if self.altitude == "amsl" else "amsl"
+        self.problem = (
+            f"ground truth: HIL_STATE_QUATERNION's altitude, read as {self.altitude}, moved "
+            f"against the message's own vertical velocity over {self.sense.travelled_m:.1f} m "
+            f"of climb or descent: the true heights are wrong; set the mavsdk vehicle's "
+            f"`ground_truth_altitude: {other}` (jMAVSim sends its NED z: ned_z)")
+        if self._on_problem is not None:
+            self._on_problem(self.problem)
 
     # -- GroundTruth -----------------------------------------------------------------------
     def available(self) -> bool:

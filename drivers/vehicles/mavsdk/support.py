@@ -84,6 +84,12 @@ class MavsdkVehicleConfig(BaseModel):
     emulator fill it, a real aircraft sends none) and offer it as ``ground_truth()`` once
     samples arrive; it only feeds fake sensors and the evaluator."""
     ground_truth_rate_hz: Annotated[float, Field(gt=0, le=250)] = 50.0
+    ground_truth_altitude: Literal["amsl", "ned_z"] = "amsl"
+    """What HIL_STATE_QUATERNION's ``alt`` (mm) holds: ``amsl``, the true altitude above mean sea
+    level (PX4 SIH, the emulator); ``ned_z``, the simulator's NED z, i.e. minus the height above
+    its origin (PX4 passes jMAVSim's on unchanged). The truth is measured from its first sample
+    either way. A wrong choice shows as an altitude moving against the message's own vertical
+    velocity: the driver then warns and records a ``truth`` event naming this param."""
     confirm_modes: bool = True
     """After an accepted command, wait (bounded by ``confirm_timeout_s``) until telemetry shows
     its mode/armed state (PX4 sends HEARTBEAT at 1 Hz only, never on change: recorded, the new

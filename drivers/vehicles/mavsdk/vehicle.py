@@ -52,12 +52,12 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from eaglemission.drivers.vehicles.events import (
-    EVENT_GRIPPER,
     EVENT_LINK,
     EVENT_REFUSED,
-    EVENT_STATUS,
+    EVENT_TRUTH,
 )
 from eaglemission.drivers.vehicles.mavsdk import arming as mavsdk_arming
+from eaglemission.drivers.vehicles.mavsdk import outputs
 from eaglemission.drivers.vehicles.mavsdk import params as mavsdk_params
 from eaglemission.drivers.vehicles.mavsdk.failover_watch import (
     PX4_DEFAULT_OFFBOARD_LOSS_S,
@@ -65,13 +65,16 @@ from eaglemission.drivers.vehicles.mavsdk.failover_watch import (
 )
 from eaglemission.drivers.vehicles.mavsdk.hil_truth import HilTruth
 from eaglemission.drivers.vehicles.mavsdk.offboard import OffboardSession
-from eaglemission.drivers.vehicles.mavsdk.session import MAV_RESULTS, MavsdkSession
+from eaglemission.drivers.vehicles.mavsdk.outputs import (
+    GRIPPER_ACTION_GRAB,
+    GRIPPER_ACTION_RELEASE,
+    ServoOutputLog,
+)
+from eaglemission.drivers.vehicles.mavsdk.session import MavsdkSession
 from eaglemission.drivers.vehicles.mavsdk.support import (
-    REMEDIES,
     MavlinkPeer,
     MavsdkVehicleConfig,
     downward_range_m,
-    geofence_data,
     mission_plan,
     parse_url,
     serial_problem,
@@ -98,8 +101,6 @@ __all__ = ["MavsdkVehicle", "MavsdkVehicleConfig", "downward_range_m", "parse_ur
 
 log = logging.getLogger(__name__)
 
-MAV_CMD_DO_GRIPPER = 211
-GRIPPER_ACTION_RELEASE, GRIPPER_ACTION_GRAB = 0, 1
 
 
 class MavsdkVehicle:
@@ -135,8 +136,11 @@ class MavsdkVehicle:
         self.telemetry = MavsdkTelemetry(cfg, self.event, self._offboard.on_mode)
         self._c = self.telemetry.cache
         self._now_ns: Callable[[], int] = time.monotonic_ns
-        self._truth = HilTruth(self.telemetry.truth_flags) if cfg.ground_truth == "auto" else None
+        self._truth = (HilTruth(self.telemetry.truth_flags, altitude=cfg.ground_truth_altitude,
+                                on_problem=self._truth_problem)
+                       if cfg.ground_truth == "auto" else None)
         self._truth_handle: Any = None
+        self.servo_outputs = ServoOutputLog()  # SERVO_OUTPUT_RAW: an arm's servos read back
         self.failover = FailoverWatch(lambda: self._offboard.active, self.event,
                                       cfg.offboard_loss_timeout_s or PX4_DEFAULT_OFFBOARD_LOSS_S)
         self.telemetry.on_gap = self.failover.on_gap
@@ -194,6 +198,7 @@ class MavsdkVehicle:
             self._truth_handle = self.plugins["MavlinkDirect"].subscribe_message(
                 "HIL_STATE_QUATERNION", lambda msg, _ud=None: truth.on_message(
                     now_ns(), msg.fields_json))
+        self.servo_outputs.subscribe(self.plugins["MavlinkDirect"])
         self._connected = True
         self._tasks = self.telemetry.start(self.plugins["Telemetry"], self.plugins["Mission"],
                                            self._now_ns, self.mavsdk["MavFlightMode"])
@@ -256,22 +261,18 @@ class MavsdkVehicle:
         ``available()`` once a sample arrived (never on a real aircraft)."""
         return self._truth
 
+    def _truth_problem(self, text: str) -> None:
+        """The ground truth contradicts itself (MAVSDK's thread): say so, once."""
+        log.warning("%s", text)
+        self.event(EVENT_TRUTH, text, {"problem": "altitude_sense"})
+
     def summary(self) -> str:
         return f"url {self.config.url}"
 
     async def upload_geofence(self, geofence: GeofenceConfig) -> None:
         """Upload the envelope's geofence (a circle around home or a NED polygon) as PX4's
         inclusion fence; PX4 then enforces it itself (its GF_ACTION)."""
-        self._require("upload_geofence()")
-        home = await self._home("upload_geofence()")
-        if home is None:
-            raise VehicleError("NO_HOME", "upload_geofence()", None,
-                               "home is not known yet: wait for telemetry (GPS fix)")
-        data, circles, polygons = geofence_data(self.mavsdk, home, geofence)
-        gf = self.plugins["Geofence"]
-        await self.bounded("upload_geofence()", lambda: gf.upload_geofence(data),
-                            timeout_s=self.config.mission_upload_timeout_s)
-        self.event(EVENT_STATUS, "geofence uploaded", {"circles": circles, "polygons": polygons})
+        await mavsdk_params.upload_geofence(self, geofence)
 
     # ------------------------------------------------------------------------------------------
     # Vehicle protocol: telemetry
@@ -448,18 +449,11 @@ class MavsdkVehicle:
         await self._gripper("release()", "release", GRIPPER_ACTION_RELEASE)
 
     async def _gripper(self, origin: str, action: str, code: int) -> None:
-        """DO_GRIPPER, returning once the gripper is done: PX4 v1.16 answers IN_PROGRESS, then
-        ACCEPTED PD_GRIPPER_TO (1 s) later (probed; already in that state: ACCEPTED at once)."""
-        self._require(origin)
-        result = await self.session.command_long(origin, MAV_CMD_DO_GRIPPER,
-                                                 [float(self.config.gripper_instance), float(code)])
-        if result != 0:
-            name = MAV_RESULTS.get(result, f"MAV_RESULT_{result}")
-            self.event(EVENT_REFUSED, f"{origin}: {name}", {"command": origin, "result": name})
-            raise VehicleError(name, origin, (self.config.gripper_instance,),
-                               f"the autopilot answered DO_GRIPPER {name}"
-                               + (f" ({REMEDIES[name]})" if name in REMEDIES else ""))
-        self.event(EVENT_GRIPPER, f"Gripper {action}", {"action": action})
+        await outputs.gripper(self, origin, action, code)
+
+    async def set_actuator(self, index: int, value: float) -> None:
+        """MAV_CMD_DO_SET_ACTUATOR (:func:`.outputs.set_actuator`)."""
+        await outputs.set_actuator(self, index, value)
 
     async def get_param(self, name: str) -> float:
         """Read an autopilot parameter (float, else int), e.g. PX4's COM_OF_LOSS_T."""
@@ -474,7 +468,11 @@ class MavsdkVehicle:
         self._require("set_param()")
         p = self.plugins["Param"]
         await self.bounded("set_param()", lambda: p.set_param_float(name, float(value)),
-                            params=(name, value))
+                           params=(name, value))
+
+    async def set_param_int(self, name: str, value: int) -> None:
+        """Write an integer parameter (:func:`.params.set_param_int`)."""
+        await mavsdk_params.set_param_int(self, name, value)
 
     # ------------------------------------------------------------------------------------------
     # offboard (:mod:`.mavsdk_offboard`)

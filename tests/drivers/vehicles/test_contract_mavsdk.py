@@ -1,7 +1,8 @@
 """The Vehicle contract suite on the MAVSDK driver: against the PX4-like MAVLink emulator over
-MAVSDK's ``raw://`` (in-process bytes, fast), and against a real PX4 SITL when
-``EAGLEMISSION_PX4_URL`` is set (e.g. ``udpin://0.0.0.0:14540`` with PX4's SIH simulator,
-``PX4_SIM_MODEL=sihsim_quadx``; skipped otherwise).
+MAVSDK's ``raw://`` (in-process bytes, fast), and against a real PX4 SITL (SIH or jMAVSim)
+through the ``px4_sitl`` fixture (tests/conftest.py): a fresh PX4 per test when
+``EAGLEMISSION_PX4_BUILD`` is set, the running one at ``EAGLEMISSION_PX4_URL`` (e.g.
+``udpin://0.0.0.0:14540``) otherwise; skipped when neither is set.
 
 Time: the emulator runs ``SPEEDUP`` times faster than the wall clock and the backend's clock
 (:class:`ScaledClock`) runs at the same rate, so the suite's durations (sized for a real PX4)
@@ -17,6 +18,7 @@ import os
 import socket
 import time
 from collections.abc import AsyncIterator
+from typing import Any
 
 import pytest
 from eaglemission.drivers.vehicles.mavsdk.vehicle import MavsdkVehicle
@@ -214,10 +216,9 @@ class Px4Backend(BackendBase):
 
 
 @pytest.fixture
-async def px4_backend() -> AsyncIterator[Px4Backend]:
-    url = os.environ.get(ENV_PX4_URL)
-    if not url:
-        pytest.skip(f"set {ENV_PX4_URL} (e.g. udpin://0.0.0.0:14540) to run against a real PX4 SITL")
+async def px4_backend(px4_sitl: Any) -> AsyncIterator[Px4Backend]:
+    """The MAVSDK driver on the test's own PX4 (``px4_sitl``: tests/conftest.py)."""
+    url = px4_sitl.url
     scheme, _, where = url.partition("://")
     if scheme != "udpin" or not where.rpartition(":")[2].isdigit():
         pytest.skip(f"{ENV_PX4_URL}={url}: the PX4 suite relays a udpin:// link (e.g. "
@@ -226,7 +227,8 @@ async def px4_backend() -> AsyncIterator[Px4Backend]:
     clock = ScaledClock(1.0)
     vehicle = MavsdkVehicle(MavsdkVehicle.Config(
         url=f"udpin://127.0.0.1:{relay.driver_addr[1]}", connect_timeout_s=30.0,
-        watchdog_timeout_s=0.5), clock=clock)
+        watchdog_timeout_s=0.5,
+        ground_truth_altitude="ned_z" if px4_sitl.sim == "jmavsim" else "amsl"), clock=clock)
     try:
         await vehicle.connect()
     except BaseException:

@@ -68,3 +68,37 @@ def test_envelope_violations_are_episodes() -> None:
     assert kinds == ["geofence", "horizontal_speed", "max_altitude"]
     speed = next(x for x in v if x.kind == "horizontal_speed")
     assert math.isclose(speed.t_s, 1.0) and math.isclose(speed.duration_s, 1.0)
+
+
+@dataclass
+class _Closed(_Result):
+    t_gripper_closed_s: float | None = 10.0
+    tool_body_at_close_m: tuple[float, float, float] | None = None
+    estimated_grasp_error_m: float | None = None
+
+
+def test_grasped_only_within_2_5_cm_of_the_tool_where_the_arm_held_it() -> None:
+    """The judge puts the tool the manipulator read back on the TRUE pose when the gripper
+    closed: an arm that reached 2 cm past the vehicle's 4 cm error grasps; 3 cm off does not."""
+    cfg = load_config(check_plugins=False)
+    target = (22.0, 1.5, -0.15)
+    d = ApproachConfig.of(cfg).grasp.distance_m
+    good = grasp_position(target, 0.0, cfg.tool_point_m, d)
+    off = (good[0] + 0.04, good[1], good[2])  # the vehicle 4 cm north of the grasp pose
+    t0 = 1_000_000_000
+    traj = _traj([(t0, off), (t0 + 10_000_000_000, off), (t0 + 20_000_000_000, off)])
+    home = cfg.tool_point_m
+    arm = (home[0] - 0.02, home[1], home[2])  # the arm took 2 cm of the 4 back
+    ev = evaluate(_Closed(tool_body_at_close_m=arm, estimated_grasp_error_m=0.0), traj, cfg,
+                  target, t0_ns=t0)
+    assert ev.gripper_closed and ev.grasped
+    assert math.isclose(ev.grasp_error_m, 0.02, abs_tol=1e-9)
+    assert math.isclose(ev.vehicle_error_m, 0.04, abs_tol=1e-9)
+    assert math.isclose(ev.horizontal_error_m, 0.02, abs_tol=1e-9)  # the arm's tool judged
+    short = (home[0] - 0.01, home[1], home[2])
+    ev = evaluate(_Closed(tool_body_at_close_m=short, estimated_grasp_error_m=0.0), traj, cfg,
+                  target, t0_ns=t0)
+    assert not ev.grasped and math.isclose(ev.grasp_error_m, 0.03, abs_tol=1e-9)
+    assert "not grasped" in "\n".join(ev.report_lines())
+    ev = evaluate(_Closed(t_gripper_closed_s=None), traj, cfg, target, t0_ns=t0)
+    assert not ev.gripper_closed and not ev.grasped and ev.grasp_error_m is None

@@ -1,0 +1,1 @@
+"""Simulated manipulators (the ``simulated_arm`` plugin)."""

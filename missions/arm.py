@@ -1,0 +1,162 @@
+"""The mission's side of an arm that moves its tool (a manipulator with a workspace).
+
+Everything here is measured, never true: the target is the camera filter's estimate, the
+vehicle's pose the telemetry, the tool's position the arm's own read-back. The grasp point is
+``grasp.distance_m`` above the target's top-face centre (as the fixed tool's grasp pose).
+
+* :func:`grasp_point_body` puts the grasp point in body FRD (the arm's frame);
+* readiness: the grasp point lies inside the workspace shrunk by its margin
+  (:meth:`ArmTracking.reachable`), counted over ``grasp.stable_frames`` frames;
+* :meth:`ArmTracking.run` commands the tool to the grasp point whenever it is woken (every
+  processed frame and every setpoint tick) while tracking is on;
+* :meth:`ArmTracking.error_m`: the measured tool-to-target error the gripper waits for;
+* :meth:`ArmTracking.hides`: the tool covers a view of the target (the shape check skips it).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import numpy.typing as npt
+from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.log import MissionLog
+
+from eaglemission import errors
+from eaglemission.geometry import CameraModel, camera_pose_ned, quat_to_R
+from eaglemission.geometry.workspace import Workspace, offset_from_home
+from eaglemission.interfaces import Manipulator
+from eaglemission.types import XYZ, VehicleState
+
+TOOL_RADIUS_M = 0.04
+"""How far around its point an arm's tool (gripper and the slide above it) can cover the view."""
+
+
+def grasp_point_body(position_ned_m: Sequence[float], attitude_q: Sequence[float],
+                     target_ned_m: Sequence[float], grasp_distance_m: float) -> XYZ:
+    """The grasp point (``grasp_distance_m`` above the target's top-face centre) in body FRD
+    for a vehicle pose."""
+    g = np.array([target_ned_m[0], target_ned_m[1], target_ned_m[2] - grasp_distance_m])
+    b = quat_to_R(attitude_q).T @ (g - np.asarray(position_ned_m, dtype=np.float64))
+    return (float(b[0]), float(b[1]), float(b[2]))
+
+
+class ArmTracking:
+    """Readiness, tracking and the measured error of an arm (loop thread). Built for every
+    flight: ``enabled`` only when the manipulator has a workspace (a fixed tool: nothing
+    here runs)."""
+
+    @classmethod
+    def of(cls, manipulator: Manipulator | None, log: MissionLog, params: ApproachConfig, *,
+           state: Callable[[], tuple[VehicleState, XYZ | None]]) -> ArmTracking:
+        """For the approach's params: the grasp distance, the command timeout, the setpoint
+        rate as the tracking period."""
+        return cls(manipulator, log, grasp_distance_m=params.grasp.distance_m,
+                   command_s=params.timeouts.command_s,
+                   period_s=1.0 / params.guidance.setpoint_rate_hz, state=state)
+
+    def __init__(self, arm: Manipulator | None, log: MissionLog, *, grasp_distance_m: float,
+                 command_s: float, period_s: float,
+                 state: Callable[[], tuple[VehicleState, XYZ | None]]) -> None:
+        self.enabled = arm is not None and arm.workspace is not None
+        self._arm, self.log = arm, log
+        self._workspace = None if arm is None else arm.workspace
+        self.grasp_distance_m = grasp_distance_m
+        self.command_s, self.period_s = command_s, period_s
+        self._state = state
+        self.tracking = False
+        self.stopping = False
+        self.wake = asyncio.Event()
+        self.commands = 0
+        self._failed = ""
+
+    @property
+    def arm(self) -> Manipulator:
+        assert self._arm is not None and self.enabled, "no arm (a fixed tool)"
+        return self._arm
+
+    @property
+    def workspace(self) -> Workspace:
+        assert self._workspace is not None, "no arm (a fixed tool)"
+        return self._workspace
+
+    def follow(self, tracks: bool) -> None:
+        """A state change: track while the state's policy says so (woken now)."""
+        self.tracking = self.enabled and tracks
+        self.wake.set()
+
+    def hold(self) -> None:
+        """The gripper closes: stop tracking (the arm holds what it grasped)."""
+        self.tracking = False
+
+    def measured_error(self) -> float | None:
+        """The measured tool-to-target error now (None: no target or read-back)."""
+        vs, target = self._state()
+        return None if target is None else self.error_m(vs, target)
+
+    def goal_body(self, vs: VehicleState, target_ned_m: XYZ) -> XYZ:
+        return grasp_point_body(vs.position_ned_m, vs.attitude_q, target_ned_m,
+                                self.grasp_distance_m)
+
+    def reachable(self, vs: VehicleState, target_ned_m: XYZ) -> bool:
+        """The grasp point lies inside the workspace shrunk by its margin."""
+        off = offset_from_home(self.goal_body(vs, target_ned_m), self.arm.home_m)
+        return self.workspace.offset_inside(off, self.workspace.margin_m)
+
+    def hides(self, model: CameraModel, vs: VehicleState, corners_px: npt.ArrayLike
+              ) -> bool:
+        """The arm's tool, seen by ``model`` from the pose ``vs``, overlaps a detection's
+        corners (grown by :data:`TOOL_RADIUS_M` at the tool's range): that view of the target
+        is partly the arm's (its outline is not the target's shape)."""
+        tool = np.asarray(self.arm.report().tool_body_m, dtype=np.float64)
+        if not np.isfinite(tool).all():
+            return False
+        p = np.asarray(vs.position_ned_m, dtype=np.float64) + quat_to_R(vs.attitude_q) @ tool
+        pose = camera_pose_ned(model, vs.position_ned_m, vs.attitude_q).inverse()
+        cam = pose.apply(p)
+        depth = float(np.ravel(cam)[2])
+        if not depth > 0:
+            return False
+        u, v = (float(x) for x in model.project(cam)[0])
+        grow = TOOL_RADIUS_M * float(model.K[0, 0]) / depth
+        c = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+        return bool(c[:, 0].min() - grow <= u <= c[:, 0].max() + grow
+                    and c[:, 1].min() - grow <= v <= c[:, 1].max() + grow)
+
+    def error_m(self, vs: VehicleState, target_ned_m: XYZ) -> float | None:
+        """Measured distance from the tool (its read-back) to the grasp point; None when the
+        read-back or the pose is not finite."""
+        tool = self.arm.report().tool_body_m
+        goal = self.goal_body(vs, target_ned_m)
+        if not all(math.isfinite(v) for v in (*tool, *goal)):
+            return None
+        return math.dist(tool, goal)
+
+    async def run(self) -> None:
+        """Command the tool to the grasp point while ``tracking``: on every wake and at least
+        every ``period_s``. A refused or late command is logged (once per kind) and retried
+        on the next wake. Returns at once without an arm."""
+        while self.enabled and not self.stopping:
+            try:
+                await asyncio.wait_for(self.wake.wait(), timeout=self.period_s)
+            except TimeoutError:
+                pass
+            self.wake.clear()
+            if not self.tracking:
+                continue
+            vs, target = self._state()
+            if target is None or not all(math.isfinite(v) for v in (*vs.position_ned_m,
+                                                                      *vs.attitude_q)):
+                continue
+            goal = self.goal_body(vs, target)
+            try:
+                await self.arm.move_to(goal, timeout_s=self.command_s)
+                self.commands += 1
+            except (errors.EagleMissionError, TimeoutError) as exc:
+                text = f"{type(exc).__name__}: {exc}"
+                if text != self._failed:
+                    self._failed = text
+                    self.log.write("fault_detected", what="arm_command", text=text,
+                                   response="retried on the next frame")
