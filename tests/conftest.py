@@ -152,6 +152,7 @@ def px4_sitl(tmp_path: Path) -> Iterator[Px4Sitl]:
     with sitl.machine_lock(PX4_LOCK_TIMEOUT_S):
         if build:
             opts = sitl.resolve_options(workdir_parent=tmp_path)
+            sitl.wait_until_free(PX4_LOCK_TIMEOUT_S)  # a PX4 started by hand, not by a test
             instance = sitl.start(opts)
             try:
                 yield Px4Sitl(url or instance.url, instance.sim, instance)

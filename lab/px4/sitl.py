@@ -198,6 +198,18 @@ def port_in_use(port: int, kind: socket.SocketKind = socket.SOCK_DGRAM) -> bool:
     return False
 
 
+def wait_until_free(timeout_s: float) -> None:
+    """Wait (bounded) until no PX4 SITL instance 0 runs on the machine (UDP 14580 free): one
+    started by hand or by another run; raises :class:`SitlError` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while port_in_use(INSTANCE_PORT):
+        if time.monotonic() > deadline:
+            raise SitlError(f"UDP {INSTANCE_PORT} still in use after {timeout_s:g} s: a PX4 SITL "
+                            "instance 0 runs on this machine; stop it first "
+                            "(python -m eaglemission.lab.px4 stop)")
+        time.sleep(0.5)
+
+
 def _spawn(name: str, argv: list[str], *, cwd: Path, env: dict[str, str], log: Path) -> Proc:
     with open(log, "wb") as out:
         popen = subprocess.Popen(argv, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=out,

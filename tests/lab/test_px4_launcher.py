@@ -239,3 +239,13 @@ def test_cli_start_refuses_a_second_instance_and_stop_ends_it(tmp_path: Path) ->
     finally:
         if not _gone(pid, 0.1):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_waiting_for_a_running_instance_is_bounded() -> None:
+    sitl.wait_until_free(0.1)  # free: returns at once
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as held:
+        held.bind(("0.0.0.0", sitl.INSTANCE_PORT))
+        t0 = time.monotonic()
+        with pytest.raises(SitlError, match="still in use after 0.6 s.*stop it first"):
+            sitl.wait_until_free(0.6)
+        assert 0.6 <= time.monotonic() - t0 < 5.0
