@@ -9,7 +9,7 @@ One flight: take off, offboard to ``--height-m`` above the ground, then two hold
   stream without the rangefinder reference does;
 * ``rangefinder``: the setpoint's altitude is corrected every cycle by the downward range
   (``altitude + (range x cos tilt - height)``, low-passed), as the mission's plane filter does
-  with ``plane.drift_mps`` sized for PX4's EKF (docs/vehicles.md).
+  with ``plane.drift_mps`` sized for PX4's EKF (reports/px4_sitl.md).
 
 Judged on HIL_STATE_QUATERNION (simulator truth; height = truth altitude above the take-off
 point): horizontal wander about its own mean (RMS, max) and height error (mean, RMS, min), the
