@@ -9,7 +9,7 @@ Prints the median and 90th-percentile time per camera and per pair, the pair rat
 >= 30 pairs/s, i.e. both cameras in <= 33 ms), and the ratio to a reference measured in the same
 run: one plain ``cv2.warpPerspective`` of a 1280x960 BGR image (the floor of the ground pass).
 
-``--effects``: the cost of each imaging effect (docs/cameras.md, "Imaging effects"): the same
+``--effects``: the cost of each imaging effect (docs/simulation.md, "Imaging effects"): the same
 frames rendered with the config's world and with one effect turned on, interleaved frame by
 frame (so a load change on the machine hits every variant alike); per camera the median time
 and its ratio to the render without the effect. Motion blur uses the trajectory's speeds

@@ -9,7 +9,7 @@
    wide camera;
 4. the camera-switch predicate vs the narrow camera's render.
 
-Usage: ``python benchmarks/bench_target.py [--views 12] [--seed 0]`` (docs/estimators.md quotes
+Usage: ``python benchmarks/bench_target.py [--views 12] [--seed 0]`` (reports/pose_estimation.md quotes
 its output).
 """
 

@@ -13,7 +13,7 @@ the ground, then up to two holds of ``--hold-s`` each at the same point:
   stream does;
 * ``rangefinder``: the setpoint's altitude is corrected every cycle by the downward range
   (``altitude + (range x cos tilt - height)``, low-passed), as the mission's plane filter does
-  with ``plane.drift_mps`` sized for PX4's EKF (docs/vehicles.md). Left out when no
+  with ``plane.drift_mps`` sized for PX4's EKF (reports/px4_sitl.md). Left out when no
   downward range arrived during the first hold (jMAVSim has no rangefinder).
 
 Judged on HIL_STATE_QUATERNION (simulator truth; height = truth altitude above the take-off

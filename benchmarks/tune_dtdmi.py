@@ -1,4 +1,4 @@
-"""Score DTDMI configurations on a DAVIS-layout folder (the tuning script behind docs/dtdmi.md).
+"""Score DTDMI configurations on a DAVIS-layout folder (the tuning script behind reports/detectors_and_tuning.md).
 
 Usage::
 

@@ -6,7 +6,7 @@
     python benchmarks/tune_real.py davis                   # default-preset grid on DAVIS 2016
     python benchmarks/tune_real.py uav --grid my.json      # a JSON list of {"params": ..., "regions": ...}
 
-Protocol (docs/detectors.md, "Tuning on real footage"):
+Protocol (figures: reports/detectors_and_tuning.md, "Tuning on real footage"):
 
 - **Folds**: the sequences, sorted by name, dealt into ``--folds`` folds (5 folds of 2 for the
   10 UAV and the 10 DAVIS sequences; fold k holds sequences k and k + 5). For every fold the grid

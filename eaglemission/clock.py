@@ -112,7 +112,7 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
     Blocking work goes to worker threads through :meth:`run_in_executor` (also what
     ``asyncio.to_thread`` and :func:`run_blocking` use): virtual time stands still while any
     worker runs, and results come back in submission order at idle points only, so a run is
-    deterministic given its inputs (docs/conventions.md, "Clock").
+    deterministic given its inputs (docs/conventions.md, "Time").
     """
 
     def __init__(self, start_s: float = 1.0) -> None:

@@ -4,7 +4,7 @@
 .. math:: E_i = \\Delta p_i \\, \\beta_i \\, \\frac{FOV}{M_i}, \\quad i \\in \\{x, y\\}
 
 The equation is not dimensionally self-evident. The reading used here (docs/paper_choices.md,
-"Eq. (16) and RPnP"):
+"Eq. (16), RPnP and the MBR corners"):
 
 - ``delta_p`` [px]: target centre minus image centre along i (u right for x, v down for y);
 - ``beta`` [dimensionless]: the pixel size along i *in units of the nominal pixel pitch*

@@ -41,7 +41,7 @@ PX4_TO_MODE: dict[tuple[int, int], FlightMode] = {v: k for k, v in MODE_TO_PX4.i
 PX4_SITL_CLOCK_RATE = 0.992
 """PX4 SITL's clock against the host's: its stamps advance 0.65-1.6 % less than the recording
 host's clock (recorded fact 22); a local SITL build here ran 2 % slow while the mission loaded
-both cores (docs/faults.md)."""
+both cores (reports/px4_sitl.md; docs/faults.md)."""
 
 # MAV_MODE_FLAG bits.
 FLAG_CUSTOM_MODE = 1

@@ -4,7 +4,7 @@ a flight.
 Every flight goes through here (``eaglemission run``, ``campaign``, the tests and the library
 API): the vehicle by its ``type`` and params, both cameras by their ``type``, one detector per
 camera, the coarse and fine estimators and the mission, all through
-:mod:`eaglemission.registry`. A deployment is a config, not a code path (docs/deployments.md):
+:mod:`eaglemission.registry`. A deployment is a config, not a code path (docs/architecture.md):
 
 * simulation: ``synthetic`` cameras + the ``simulated`` vehicle, virtual time;
 * emulator / autopilot SITL: the ``mavsdk`` vehicle at a URL, ``synthetic`` cameras rendering

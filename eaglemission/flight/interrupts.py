@@ -1,5 +1,5 @@
 """Ctrl-C / SIGTERM during ``eaglemission run``: the first signal asks the mission for its safe
-stop (``safety.on_interrupt``), a second exits at once (docs/deployments.md)."""
+stop (``safety.on_interrupt``), a second exits at once (docs/field_bringup.md, "Fly")."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Flying an assembled mission: connect, open, check, fly, close (:func:`fly`,
 :func:`fly_sync`), with the options the CLI's flags set and the result and exit code it
-prints. Building the parts is :mod:`.assembly`; the order of a flight, the exit codes, Ctrl-C
-and the dry run are in docs/deployments.md.
+prints. Building the parts is :mod:`.assembly`; the order of a flight, Ctrl-C and the dry run
+are in docs/field_bringup.md, the exit codes in docs/troubleshooting.md.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ docs/conventions.md (``(u, v)``, origin at the centre of the top-left pixel): th
 ``u_min = x - origin - 0.5``, ``u_max = u_min + w`` (and the same for v), so a 1-based box at
 ``x = 1, w = 10`` spans the pixel centres 0..9. ``origin=0`` reads 0-based files.
 
-Metrics of one frame against its box (docs/detectors.md, "Box benchmarks"):
+Metrics of one frame against its box (docs/detectors.md, "Box metrics"):
 
 - **on target**: the best-ranked detection's centre inside the box grown by 25 % of its width
   (height) on each side (``grow_box``);

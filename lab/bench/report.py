@@ -69,7 +69,7 @@ def markdown_table(runs: Sequence[DetectorRun], sequences: Sequence[str]) -> str
 
 
 def box_tables(runs: Sequence[DetectorRun], sequences: Sequence[str]) -> list[str]:
-    """Markdown lines of the box metrics (docs/detectors.md, "Box benchmarks")."""
+    """Markdown lines of the box metrics (docs/detectors.md, "Box metrics")."""
     lines = ["Box metrics (on target = the best detection's centre inside the box grown 25 % a "
              "side; on the mask = its centre on a ground-truth mask pixel, mask sequences only; "
              "false = detections whose centre misses the grown box, per scored frame):", "",

@@ -1,4 +1,4 @@
-"""The synthetic camera's imaging effects after the scene is drawn (docs/cameras.md,
+"""The synthetic camera's imaging effects after the scene is drawn (docs/simulation.md,
 "Imaging effects"): motion blur from the camera's motion during the exposure, a white-balance
 colour cast, Bayer mosaicing + demosaicing through the genicam driver's own conversion, and a
 JPEG round trip. Pure functions of their inputs (no RNG).

@@ -1,6 +1,6 @@
 """The synthetic world's ground and sky: the textured plane warped band by band from the mip
 level that matches each band's footprint, aerial haze and the edge fade, the sky gradient
-(docs/cameras.md, "Synthetic world")."""
+(docs/simulation.md, "Synthetic world")."""
 
 from __future__ import annotations
 

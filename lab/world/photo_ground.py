@@ -1,4 +1,4 @@
-"""Ground from a real aerial photograph (docs/cameras.md, "Real ground").
+"""Ground from a real aerial photograph (docs/simulation.md, "Real ground").
 
 The photo (``m_per_px`` metres per pixel, north up) is centred on home and mirrored beyond its
 edge (``cv2.BORDER_REFLECT`` in the band warps), so the ground never ends. Its mip levels are

@@ -5,7 +5,7 @@ Geometry (docs/conventions.md): local NED with the ground plane at ``d = 0``; th
 box whose top face is at ``d = -height_m``, centred at (``target_north_m``, ``target_east_m``)
 and yawed by ``target_yaw_deg`` (its x axis, along ``length_m``, points at that heading).
 
-Rendering (docs/cameras.md, "Synthetic world"):
+Rendering (docs/simulation.md, "Synthetic world"):
 
 1. ground: plane-induced homography from texture texels to pixels, one ``cv2.warpPerspective``
    per horizontal band of rows; each band reads the mip level whose texel matches the band's

@@ -79,7 +79,7 @@ class SyntheticWorldConfig(StrictModel):
     focal_error_fraction: Annotated[float, Field(ge=0, le=0.2)] = 0.0
     camera_time_offset_s: Annotated[float, Field(ge=0, le=0.2)] = 0.0
     frame_rate_hz: Annotated[float, Field(gt=0, le=200)] = 30.0
-    # imaging effects (docs/cameras.md, "Imaging effects"); all off by default
+    # imaging effects (docs/simulation.md, "Imaging effects"); all off by default
     white_balance_gains_bgr: tuple[WhiteBalanceGain, WhiteBalanceGain, WhiteBalanceGain] = Field(
         default=(1.0, 1.0, 1.0), description="per-channel gain error on every frame (B, G, R): "
         "an auto-white-balance error or another illuminant colour")

@@ -1,6 +1,6 @@
 """Procedural ground textures for the synthetic world, generated deterministically from a seed.
 
-The ground is the product of two layers (docs/cameras.md, "Synthetic world"):
+The ground is the product of two layers (docs/simulation.md, "Synthetic world"):
 
 * a **base** texture: unique (non-repeating) BGR colour over the whole world extent at
   ``texel_m`` (5 cm by default), holding every structure larger than ~10 cm (patches of soil,

@@ -1,6 +1,6 @@
 """``replay`` vehicle plugin: a recorded run's telemetry stands in for the vehicle, open loop.
 
-The replay deployment (docs/deployments.md): ``replay`` cameras and this vehicle play one
+The replay deployment (docs/recording.md): ``replay`` cameras and this vehicle play one
 recording (written by ``eaglemission run --record DIR``) through the same detector ->
 estimator -> state machine. The recorded flight goes on whatever the mission commands:
 every command is accepted and logged as an event ("open loop"), and ``state()`` is the

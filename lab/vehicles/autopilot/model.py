@@ -17,12 +17,12 @@ s of it, the emulator STATUSTEXT, HEARTBEAT and MISSION_* messages.
 
 The two vehicles differ in details; :class:`AutopilotParams` keeps each one's behaviour where
 it is observable (its fields say what each vehicle sets;
-docs/vehicles.md has the table next to the recorded PX4), so that aligning both with the
+reports/px4_emulator.md has the table next to the recorded PX4), so that aligning both with the
 recordings is a change of parameters.
 
 Commands from the client (``source="command"``) take effect after the model's command latency;
 the autopilot's own decisions (mode logic, failsafes, a pilot) are immediate and drop the
-commands still in flight (the newest command wins, docs/vehicles.md).
+commands still in flight (the newest command wins, docs/simulation.md).
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ class AutopilotParams:
     Where the simulated vehicle and the emulator behave differently, a parameter keeps each
     one's behaviour; the value each sets is given as
     ``sim`` / ``emu`` (built by ``simulated_config.autopilot_params`` and
-    ``emulator_config.emulator_autopilot_params``; docs/vehicles.md has the table).
+    ``emulator_config.emulator_autopilot_params``; reports/px4_emulator.md has the table).
     """
 
     home_altitude_amsl_m: float = 489.4

@@ -14,7 +14,7 @@ DO_SET_MODE, DO_REPOSITION, DO_ORBIT, takeoff/land/RTL, every offboard setpoint 
 (SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT, SET_ATTITUDE_TARGET: :mod:`.emulator_offboard`)
 with PX4's offboard-loss failsafe (COM_OF_LOSS_T, COM_OBL_RC_ACT), DO_GRIPPER (IN_PROGRESS, then
 ACCEPTED), MANUAL_CONTROL, the parameter protocol for PX4 v1.16's whole parameter set and
-SET_MESSAGE_INTERVAL / REQUEST_MESSAGE; docs/vehicles.md, "MAVSDK plugins as PX4 answers them",
+SET_MESSAGE_INTERVAL / REQUEST_MESSAGE; reports/px4_emulator.md, "MAVSDK plugins as PX4 answers them",
 compares each with what PX4 v1.16 SITL answered the same MAVSDK calls.
 
 The vehicle is :class:`eaglemission.lab.vehicles.multicopter.dynamics.MulticopterDynamics` with the

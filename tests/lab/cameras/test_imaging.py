@@ -1,5 +1,5 @@
 """The synthetic camera's imaging effects: motion blur from the camera's motion during the
-exposure, white balance, Bayer demosaicing, JPEG (docs/cameras.md, "Imaging effects")."""
+exposure, white balance, Bayer demosaicing, JPEG (docs/simulation.md, "Imaging effects")."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ answered the same calls. PX4's answers were measured with
     PX4_INSTANCE=1 PX4_WAIT=1 start_px4.sh   # a fresh PX4 v1.16.0 SITL, SIH quad (sihsim_quadx)
     python benchmarks/probe_mavsdk_plugins.py --url udpin://0.0.0.0:14541 --tap --out px4.json
 
-(the same probe against ``eaglemission sitl-vehicle`` gives the emulator's; docs/vehicles.md,
+(the same probe against ``eaglemission sitl-vehicle`` gives the emulator's; reports/px4_emulator.md,
 "MAVSDK plugins as PX4 answers them", has the table).
 """
 
