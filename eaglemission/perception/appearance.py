@@ -114,6 +114,10 @@ def example_ncc(image: NDArray[np.uint8], example: NDArray[np.uint8],
     return float(cv2.minMaxLoc(ncc)[1])
 
 
+LOCATE_SIDE_PX = 24
+"""The example's long side when looked for over the whole frame: half the local match's, so
+the search over a 1280x960 frame costs a few milliseconds, not tens (bench_perception.py)."""
+
 LOCATE_SCALES = (0.8, 1.0, 1.25)
 """The example's scales :func:`locate_example` tries (a target the example was cropped from,
 a few frames on)."""
@@ -122,11 +126,11 @@ a few frames on)."""
 def locate_example(image: NDArray[np.uint8], example: NDArray[np.uint8]
                    ) -> tuple[tuple[float, float, float, float], float] | None:
     """See :meth:`TargetAppearance.locate_example` (the frame and the example reduced together
-    so that the example's long side is at most :data:`MATCH_SIDE_PX`)."""
+    so that the example's long side is at most :data:`LOCATE_SIDE_PX`)."""
     if image.ndim != 3:
         return None
     th, tw = example.shape[:2]
-    k = min(1.0, MATCH_SIDE_PX / max(th, tw))
+    k = min(1.0, LOCATE_SIDE_PX / max(th, tw))
     small: NDArray[np.uint8] = image if k == 1.0 else np.asarray(
         cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_AREA), np.uint8)
     best: tuple[float, tuple[float, float, float, float]] | None = None
