@@ -29,7 +29,13 @@ from eaglemission.config import MissionFile
 from eaglemission.perception.inputs import frame_time_ns, read_image
 from eaglemission.types import Detection, Frame
 
-TRACKERS = ("csrt", "kcf")
+OPENCV_DEFAULTS: dict[str, dict[str, Any]] = {
+    "csrt": {"scale": 1.0, "template_size": 200, "number_of_scales": 33, "admm_iterations": 4,
+             "use_segmentation": True},
+    "kcf": {"scale": 1.0},
+}
+"""The reference trackers as a user would start them: OpenCV's own settings, full resolution
+(not the mission's cheaper ones)."""
 
 
 @dataclass
@@ -132,8 +138,9 @@ def run_acquisition(seq: BenchSequence, detector: Any, first: int, fps: float) -
 
 def run_tracker(seq: BenchSequence, kind: str, first: int, fps: float,
                 params: dict[str, Any] | None = None) -> MethodScore:
-    """A tracker started on the first box (the example's frame)."""
-    tracker = registry.load("trackers", kind, params or {"scale": 1.0})
+    """A tracker started on the first box (the example's frame); ``params`` None: OpenCV's own
+    settings at full resolution."""
+    tracker = registry.load("trackers", kind, OPENCV_DEFAULTS[kind] if params is None else params)
     out = MethodScore()
     boxes = _boxes(seq)
     for i in range(first, len(seq.frames)):
@@ -165,7 +172,7 @@ ROWS = ("mission: acquire + keep", "  keeping, from the confirmation on",
 
 
 def bench_sequence(seq: BenchSequence, cfg: MissionFile, fps: float,
-                   trackers: Sequence[str] = TRACKERS) -> dict[str, MethodScore]:
+                   trackers: Sequence[str] = tuple(OPENCV_DEFAULTS)) -> dict[str, MethodScore]:
     """Every row of :data:`ROWS` on one sequence (the same frames)."""
     first, crop = example_of(seq)
     out: dict[str, MethodScore] = {}
