@@ -320,9 +320,14 @@ def choose_detection(result: DetectionResult, req: Request,
                                                         appearance.image.shape):
         return det
     found = appearance.locate_example(np.asarray(frame.image))
-    if found is None or found[1] < min_ncc or (det is not None and match(det) >= found[1]):
+    if found is None:
         return det
-    return box_detection(found[0], frame.camera_id, score=found[1])
+    # scored as the detector's candidate is (the local match), so the two compare
+    u0, v0, u1, v1 = found[0]
+    score = appearance.example_match(np.asarray(frame.image), ((u0 + u1) / 2, (v0 + v1) / 2))
+    if score < min_ncc or (det is not None and match(det) >= score):
+        return det
+    return box_detection(found[0], frame.camera_id, score=score)
 
 
 def example_size_plausible(model: CameraModel, state: VehicleState, target: TargetConfig,
