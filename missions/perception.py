@@ -403,8 +403,8 @@ class Perception:
             self._epochs[frame.camera_id] = req.keep_epoch
         ran = keeper is None or keeper.detector_due(req.close_range)
         result, anomaly = detect(tools.detector, frame) if ran else (not_run(frame), None)
-        if keeper is not None and keeper.box is not None and req.predicted_px is None:
-            u0, v0, u1, v1 = keeper.box  # the kept target is where to look
+        if keeper is not None and keeper.look_box is not None and req.predicted_px is None:
+            u0, v0, u1, v1 = keeper.look_box  # the kept target, or the candidate: where to look
             req = replace(req, predicted_px=((u0 + u1) / 2, (v0 + v1) / 2))
         det = choose_detection(result, req, tools.appearance, self.p, self.target,
                                tools.fitter is not None)

@@ -60,6 +60,22 @@ def test_the_target_is_confirmed_after_confirm_frames_on_one_object():
     assert tr.starts == [box_of(det_at(121, 41))]
 
 
+def test_the_next_frame_looks_where_the_candidate_or_the_kept_target_is():
+    k = TargetKeeper(ScriptedTracker([(60, 40, 70, 50)]), KeepConfig(confirm_frames=2))
+    assert k.look_box is None
+    k.step(FRAME, det_at(50, 40), True)
+    assert k.look_box == box_of(det_at(50, 40))  # the candidate awaiting confirmation
+    k.step(FRAME, None, True)
+    assert k.look_box is None  # nothing on it: searching anew
+    k.step(FRAME, det_at(50, 40), True)
+    k.step(FRAME, det_at(51, 40), True)
+    assert k.keeping and k.look_box == k.box == box_of(det_at(51, 40))
+    k.step(FRAME, None, False)
+    assert k.look_box == (60, 40, 70, 50)  # the tracker's box
+    k.reset()
+    assert k.look_box is None
+
+
 def test_keeping_between_re_checks_uses_the_trackers_box():
     tr = ScriptedTracker([(51, 36, 61, 46), (52, 36, 62, 46), (53, 36, 63, 46)])
     k = TargetKeeper(tr, KeepConfig(confirm_frames=1, detect_every_frames=3))
