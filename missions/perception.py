@@ -44,7 +44,7 @@ from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter
 from eaglemission.perception.appearance import TargetAppearance
-from eaglemission.perception.keep import TargetKeeper, box_detection
+from eaglemission.perception.keep import TargetKeeper, box_detection, on_box
 from eaglemission.recording.foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
@@ -129,6 +129,8 @@ class Request:
     plane: PlaneState
     keep_epoch: int = 0
     """Changes when the mission drops its target (lost, rejected): the keeper lets it go."""
+    candidate_box: tuple[float, float, float, float] | None = None
+    """While searching, the keeper's candidate awaiting confirmation (followed first)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -308,6 +310,11 @@ def choose_detection(result: DetectionResult, req: Request,
         def match(d: Detection) -> float:
             return appearance.example_match(image, d.center_px)
 
+    if req.predicted_px is None and req.candidate_box is not None:
+        followed = follow_candidate(result, req.candidate_box, frame, appearance, plausible,
+                                    min_ncc)
+        if followed is not None:
+            return followed
     det = select_detection(result, req.predicted_px, model.width_px, model.height_px,
                            p.image_border_px, gate_px, plausible, allow_cut=allow_cut,
                            match=match, match_min=min_ncc or 0.0)
@@ -328,6 +335,24 @@ def choose_detection(result: DetectionResult, req: Request,
     if score < min_ncc or (det is not None and match(det) >= score):
         return det
     return box_detection(found[0], frame.camera_id, score=score)
+
+
+def follow_candidate(result: DetectionResult, box: tuple[float, float, float, float],
+                     frame: Frame, appearance: TargetAppearance | None,
+                     plausible: Callable[[Detection], bool], min_ncc: float | None
+                     ) -> Detection | None:
+    """Stage 2a while a candidate awaits confirmation: the best-ranked plausible detection on
+    its box, else (with an example image) the example found again near it with at least
+    ``min_ncc``; None: the candidate is gone (the search starts over)."""
+    for d in result.detections:
+        if on_box(d.center_px, box) and plausible(d):
+            return d
+    if appearance is None or appearance.image is None or min_ncc is None:
+        return None
+    found = appearance.locate_example_near(np.asarray(frame.image), box)
+    if found is None or found[1] < min_ncc:
+        return None
+    return box_detection(found[0], frame.camera_id, score=found[1])
 
 
 def example_size_plausible(model: CameraModel, state: VehicleState, target: TargetConfig,
@@ -403,9 +428,11 @@ class Perception:
             self._epochs[frame.camera_id] = req.keep_epoch
         ran = keeper is None or keeper.detector_due(req.close_range)
         result, anomaly = detect(tools.detector, frame) if ran else (not_run(frame), None)
-        if keeper is not None and keeper.look_box is not None and req.predicted_px is None:
-            u0, v0, u1, v1 = keeper.look_box  # the kept target, or the candidate: where to look
+        if keeper is not None and keeper.box is not None and req.predicted_px is None:
+            u0, v0, u1, v1 = keeper.box  # the kept target is where to look
             req = replace(req, predicted_px=((u0 + u1) / 2, (v0 + v1) / 2))
+        elif keeper is not None and keeper.candidate is not None:
+            req = replace(req, candidate_box=keeper.candidate)
         det = choose_detection(result, req, tools.appearance, self.p, self.target,
                                tools.fitter is not None)
         likeness = None

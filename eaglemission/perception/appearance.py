@@ -18,6 +18,7 @@ Either may be absent; :class:`TargetAppearance` says what it can do (``has_model
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -123,14 +124,15 @@ LOCATE_SCALES = (0.8, 1.0, 1.25)
 a few frames on)."""
 
 
-def locate_example(image: NDArray[np.uint8], example: NDArray[np.uint8]
+def locate_example(image: NDArray[np.uint8], example: NDArray[np.uint8],
+                   side_px: int = LOCATE_SIDE_PX
                    ) -> tuple[tuple[float, float, float, float], float] | None:
     """See :meth:`TargetAppearance.locate_example` (the frame and the example reduced together
-    so that the example's long side is at most :data:`LOCATE_SIDE_PX`)."""
+    so that the example's long side is at most ``side_px``)."""
     if image.ndim != 3:
         return None
     th, tw = example.shape[:2]
-    k = min(1.0, LOCATE_SIDE_PX / max(th, tw))
+    k = min(1.0, side_px / max(th, tw))
     small: NDArray[np.uint8] = image if k == 1.0 else np.asarray(
         cv2.resize(image, None, fx=k, fy=k, interpolation=cv2.INTER_AREA), np.uint8)
     best: tuple[float, tuple[float, float, float, float]] | None = None
@@ -208,6 +210,31 @@ class TargetAppearance:
         if self.image is None:
             return None
         return locate_example(image, self.image)
+
+    def locate_example_near(self, image: NDArray[np.uint8],
+                            box: tuple[float, float, float, float]
+                            ) -> tuple[tuple[float, float, float, float], float] | None:
+        """:meth:`locate_example` within a window around ``box`` (its size again on every
+        side): where a candidate seen in an earlier frame is now, scored as
+        :meth:`example_match` scores (the example at its own scale, not the box's)."""
+        if self.image is None or image.ndim != 3:
+            return None
+        u0, v0, u1, v1 = box
+        w, h = u1 - u0, v1 - v0
+        th, tw = self.image.shape[:2]
+        pad_u, pad_v = max(w, tw), max(h, th)
+        x0, y0 = max(0, int(u0 - pad_u)), max(0, int(v0 - pad_v))
+        x1 = min(image.shape[1], int(math.ceil(u1 + pad_u)))
+        y1 = min(image.shape[0], int(math.ceil(v1 + pad_v)))
+        window = np.ascontiguousarray(image[y0:y1, x0:x1])
+        k = min(1.0, MATCH_SIDE_PX / max(th, tw))
+        if window.shape[0] < th * k or window.shape[1] < tw * k:
+            return None
+        found = locate_example(window, self.image, side_px=MATCH_SIDE_PX)
+        if found is None:
+            return None
+        (a, b, c, d), score = found
+        return (a + x0, b + y0, c + x0, d + y0), score
 
     def with_prior(self, detector: Any, prior: PriorConfig | None) -> Any:
         """``detector`` followed by the appearance prior (``prior``; None: the detector alone,

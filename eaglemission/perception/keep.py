@@ -5,8 +5,8 @@ One :class:`TargetKeeper` per camera, a small state machine:
 
 - **searching**: the detector runs on every frame; its chosen detection (stage 2 of the
   perception pipeline) on the same object in ``confirm_frames`` consecutive detector frames
-  confirms the target, and the tracker starts on its box; the candidate is where the next
-  frame looks first (:attr:`TargetKeeper.look_box`), as the kept box is while keeping;
+  confirms the target, and the tracker starts on its box; the next frame follows the
+  candidate first (:attr:`TargetKeeper.candidate`, the perception's stage 2);
 - **keeping**: the tracker follows the box; every ``detect_every_frames``-th frame (every frame
   at close range, where the pose wants the detector's region) the detector re-checks. A chosen
   detection on the kept box is the target (the tracker restarts on it when their boxes overlap
@@ -117,11 +117,11 @@ class TargetKeeper:
         return self.box is not None
 
     @property
-    def look_box(self) -> Box | None:
-        """Where the target should be in the next frame: the kept box, or while searching the
-        candidate awaiting confirmation (so that it is followed while the detector sees it,
-        rather than confirmed only when nothing else looks more like the target)."""
-        return self.box if self.box is not None else self._candidate
+    def candidate(self) -> Box | None:
+        """While searching, the candidate awaiting confirmation (None: none, or keeping): the
+        next frame follows it first, where it was, so that it is not confirmed only when
+        nothing else in view looks more like the target."""
+        return None if self.box is not None else self._candidate
 
     def reset(self) -> None:
         self.box, self._candidate, self._seen, self._since_check, self._off = None, None, 0, 0, 0

@@ -10,11 +10,20 @@ import numpy as np
 import pytest
 from eaglemission.estimators.top_plane import TopPlaneFitter
 from eaglemission.missions.approach_config import PerceptionConfig
-from eaglemission.missions.perception import Perception, Provenance, Request, Tools, inside_polygon
+from eaglemission.missions.perception import (
+    Perception,
+    Provenance,
+    Request,
+    Tools,
+    follow_candidate,
+    inside_polygon,
+)
 from eaglemission.missions.target_state import PlaneState
 from world_helpers import approach_pose, detection_from_polygon
 
 from eaglemission.geometry import camera_pose_ned
+from eaglemission.perception.appearance import TargetAppearance
+from eaglemission.perception.keep import box_detection
 from eaglemission.types import DetectionResult, EstimationFailed, Frame, TargetEstimate
 
 
@@ -174,3 +183,36 @@ def test_close_range_prefers_the_colour_region_that_agrees_with_the_detection(
         np.testing.assert_allclose(m.detection.center_px, outline_centre, atol=3.0)
     else:
         assert m.detection is det
+
+
+def _textured_patch(seed: int, size: int = 30) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, 255, (size, size, 3), dtype=np.uint8)
+
+
+def test_a_candidate_is_followed_on_its_box_then_by_its_example_then_dropped() -> None:
+    example = _textured_patch(1)
+    image = np.full((240, 320, 3), 90, np.uint8)
+    image[100:130, 200:230] = example  # the candidate, moved 4 px right since its last box
+    appearance = TargetAppearance(image=example)
+    frame = Frame(image, 1, "wide", 1)
+    box = (196.0, 100.0, 226.0, 130.0)
+    on_it = box_detection((200, 100, 230, 130), "wide", score=0.5)
+    elsewhere = box_detection((20, 20, 50, 50), "wide", score=1.0)
+    result = DetectionResult(np.zeros((240, 320), np.float32), (elsewhere, on_it), 1, "wide", 1)
+
+    def anything(d):
+        return True
+
+    # a detection on the candidate's box wins over a better-ranked one elsewhere
+    assert follow_candidate(result, box, frame, appearance, anything, 0.5) is on_it
+    # no detection on it: the example found again next to the box
+    only_elsewhere = DetectionResult(result.saliency, (elsewhere,), 1, "wide", 1)
+    found = follow_candidate(only_elsewhere, box, frame, appearance, anything, 0.5)
+    assert found is not None
+    assert found.center_px == pytest.approx((214.5, 114.5), abs=1.5)
+    # the candidate gone (plain ground where it was): None, the search starts over
+    gone = Frame(np.full((240, 320, 3), 90, np.uint8), 2, "wide", 2)
+    assert follow_candidate(only_elsewhere, box, gone, appearance, anything, 0.5) is None
+    # without an example image only a detection on the box follows it
+    assert follow_candidate(only_elsewhere, box, frame, None, anything, None) is None

@@ -60,20 +60,18 @@ def test_the_target_is_confirmed_after_confirm_frames_on_one_object():
     assert tr.starts == [box_of(det_at(121, 41))]
 
 
-def test_the_next_frame_looks_where_the_candidate_or_the_kept_target_is():
+def test_the_candidate_awaiting_confirmation_is_offered_while_searching_only():
     k = TargetKeeper(ScriptedTracker([(60, 40, 70, 50)]), KeepConfig(confirm_frames=2))
-    assert k.look_box is None
+    assert k.candidate is None
     k.step(FRAME, det_at(50, 40), True)
-    assert k.look_box == box_of(det_at(50, 40))  # the candidate awaiting confirmation
+    assert k.candidate == box_of(det_at(50, 40))
     k.step(FRAME, None, True)
-    assert k.look_box is None  # nothing on it: searching anew
+    assert k.candidate is None  # nothing chosen: searching anew
     k.step(FRAME, det_at(50, 40), True)
     k.step(FRAME, det_at(51, 40), True)
-    assert k.keeping and k.look_box == k.box == box_of(det_at(51, 40))
-    k.step(FRAME, None, False)
-    assert k.look_box == (60, 40, 70, 50)  # the tracker's box
+    assert k.keeping and k.candidate is None  # keeping: the kept box, not a candidate
     k.reset()
-    assert k.look_box is None
+    assert k.candidate is None
 
 
 def test_keeping_between_re_checks_uses_the_trackers_box():
