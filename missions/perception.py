@@ -442,9 +442,7 @@ class Perception:
             def likeness(centre_px: tuple[float, float]) -> float:
                 return appearance.example_match(image, centre_px)
 
-        like_min = 0.0 if tools.appearance is None else \
-            tools.appearance.example_config.match_min_ncc or 0.0
-        kept = None if keeper is None else keeper.step(frame, det, ran, likeness, like_min)
+        kept = None if keeper is None else keeper.step(frame, det, ran, likeness)
         if kept is not None:
             det = kept.detection
         chosen: tuple[Detection | None, bool, Measured] | None = None

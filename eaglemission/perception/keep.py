@@ -11,9 +11,8 @@ One :class:`TargetKeeper` per camera, a small state machine:
   at close range, where the pose wants the detector's region) the detector re-checks. A chosen
   detection on the kept box is the target (the tracker restarts on it when their boxes overlap
   less than ``restart_iou``: drift, a change of size); one elsewhere in ``switch_after``
-  re-checks in a row moves the keeper to it (with an example image of the target, only when the
-  tracker's box no longer looks like the example and the detection does: among similar
-  objects the detector may prefer another one, and the target's look drifts from the example's);
+  re-checks in a row moves the keeper to it (with an example image of the target, only when it
+  looks more like the example than the tracker's box: the detector may prefer another object);
   a tracker that loses the target hands the frame to the detector, and without a detection on
   it the keeper searches again.
 
@@ -133,13 +132,12 @@ class TargetKeeper:
                 or self._since_check + 1 >= self.config.detect_every_frames)
 
     def step(self, frame: Frame, chosen: Detection | None, detected: bool,
-             likeness: Callable[[tuple[float, float]], float] | None = None,
-             like_min: float = 0.0) -> Kept | None:
+             likeness: Callable[[tuple[float, float]], float] | None = None) -> Kept | None:
         """The kept target in ``frame`` (None while searching). ``detected``: the detector ran
         on this frame; ``chosen``: its chosen detection (None: none); ``likeness``: how much
         the frame at a pixel looks like the target's example image (None: no example): a
-        detection elsewhere moves the keeper only when the tracker's box looks less like the
-        example than ``like_min`` (the tracker drifted) and the detection at least as much."""
+        detection elsewhere moves the keeper only if it looks more like the example than the
+        tracker's box does."""
         if not self.keeping:
             return self._search(frame, chosen) if detected else None
         tracked = self.tracker.update(frame)
@@ -158,8 +156,8 @@ class TargetKeeper:
                 self.tracker.start(frame, box)
             self.box = box
             return Kept(chosen, False)
-        if chosen is not None and (tracked is None or likeness is None
-                                   or self._drifted(likeness, tracked, chosen, like_min)):
+        if chosen is not None and (tracked is None or likeness is None or likeness(
+                chosen.center_px) > likeness(_centre(tracked))):
             self._off += 1
             if self._off >= self.config.switch_after:  # the detector insists: move to it
                 self._off = 0
@@ -171,14 +169,6 @@ class TargetKeeper:
             return None
         self.box = tracked
         return Kept(box_detection(tracked, frame.camera_id), True)
-
-    @staticmethod
-    def _drifted(likeness: Callable[[tuple[float, float]], float], tracked: Box,
-                 chosen: Detection, like_min: float) -> bool:
-        """The tracker's box no longer looks like the example (below ``like_min``) and the
-        detector's choice does (at least ``like_min``): among similar objects, and while the
-        target's look drifts from the example's, the kept one stays."""
-        return likeness(_centre(tracked)) < like_min <= likeness(chosen.center_px)
 
     def _search(self, frame: Frame, chosen: Detection | None) -> Kept | None:
         if chosen is None:
