@@ -15,6 +15,7 @@ import argparse
 import json
 import logging
 import math
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -30,6 +31,7 @@ from eaglemission.commands import Command
 from eaglemission.commands.params import UsageError, deep_merge, parse_kv
 from eaglemission.config import MissionFile
 from eaglemission.errors import InputError
+from eaglemission.flight.progress import compile_progress
 from eaglemission.perception.appearance import AppearanceConfig, TargetAppearance
 from eaglemission.perception.inputs import (
     IMAGE_EXTS,
@@ -178,12 +180,18 @@ def prior_from_args(args: argparse.Namespace) -> TargetPrior | None:
 
 
 def run_detect(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     if not (args.fps > 0 and math.isfinite(args.fps)):
         raise UsageError(f"--fps: must be > 0, got {args.fps}")
     if args.max_frames is not None and args.max_frames < 1:
         raise UsageError(f"--max-frames: must be >= 1, got {args.max_frames}")
+    # the first run compiles the detector's kernels (building it, its first frame): say so
+    with compile_progress(lambda line: print(line, file=sys.stderr, flush=True)):
+        return _detect(args)
+
+
+def _detect(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
     step, name = _stepper(args)
     out = Path(args.out)
     frames_iter = iter_input(Path(args.input), args.fps, args.max_frames)
