@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,9 +34,11 @@ class ReplayResult:
     """How its frames are stored: ``png`` (lossless) or ``jpeg``."""
 
 
-def replay(path: str | Path, config: str | Path | None = None) -> ReplayResult:
-    """Replay ``path`` (with the mission file ``config``, else the recorded one) and compare.
-    Raises ConfigError for a file or config that cannot be replayed."""
+def replay(path: str | Path, config: str | Path | None = None,
+           say: Callable[[str], None] | None = None) -> ReplayResult:
+    """Replay ``path`` (with the mission file ``config``, else the recorded one) and compare;
+    ``say`` gets a line per state change as the replay flies. Raises ConfigError for a file or
+    config that cannot be replayed."""
     from eaglemission.config import MissionFile, load_config
     from eaglemission.errors import ConfigError
     from eaglemission.flight.run import FlightOptions, fly_sync
@@ -64,7 +67,12 @@ def replay(path: str | Path, config: str | Path | None = None) -> ReplayResult:
     except ValueError as exc:
         raise ConfigError(f"{config or rec_path}: cannot replay with this mission file: "
                           f"{exc}") from exc
-    flight = fly_sync(cfg, FlightOptions(hooks=MissionHooks(keep_log=True), record_config=False))
+    def on_state(t_s: float, state: str, reason: str, action: str) -> None:
+        if say is not None:
+            say(f"  {t_s:7.2f} s  {state}")
+
+    flight = fly_sync(cfg, FlightOptions(hooks=MissionHooks(keep_log=True, on_state=on_state),
+                                         record_config=False))
     log = getattr(flight.outcome, "log", None)
     replayed = list(log.records) if log is not None else []
     return ReplayResult(compare(recorded, replayed), flight, meta.get("clock", "?"),
@@ -83,7 +91,8 @@ def _run(args: argparse.Namespace) -> int:
     from eaglemission.flight.run import EXIT_CONFIG, EXIT_DONE, EXIT_ERROR, EXIT_REPLAY_DIVERGED
 
     try:
-        res = replay(args.file, args.config)
+        print(f"replaying {args.file} ...", flush=True)
+        res = replay(args.file, args.config, say=lambda line: print(line, flush=True))
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
