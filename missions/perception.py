@@ -428,13 +428,20 @@ class Perception:
             self._epochs[frame.camera_id] = req.keep_epoch
         ran = keeper is None or keeper.detector_due(req.close_range)
         result, anomaly = detect(tools.detector, frame) if ran else (not_run(frame), None)
-        if keeper is not None and keeper.box is not None and req.predicted_px is None:
-            u0, v0, u1, v1 = keeper.box  # the kept target is where to look
+        unaided = req
+        kept_box = keeper.box if keeper is not None and req.predicted_px is None else None
+        if kept_box is not None:
+            u0, v0, u1, v1 = kept_box  # the kept target is where to look
             req = replace(req, predicted_px=((u0 + u1) / 2, (v0 + v1) / 2))
         elif keeper is not None and keeper.candidate is not None:
             req = replace(req, candidate_box=keeper.candidate)
         det = choose_detection(result, req, tools.appearance, self.p, self.target,
                                tools.fitter is not None)
+        if det is None and ran and kept_box is not None and result.detections:
+            # nothing near the kept box: the keeper hears of the detector's choice elsewhere
+            # (it moves there only as its switching rule allows)
+            det = choose_detection(result, unaided, tools.appearance, self.p, self.target,
+                                   tools.fitter is not None)
         likeness = None
         if tools.appearance is not None and tools.appearance.image is not None:
             image, appearance = np.asarray(frame.image), tools.appearance

@@ -38,7 +38,8 @@ def test_the_shipped_files_pass_except_the_replay_without_its_recording() -> Non
     got = {p.name: check_document(copy.deepcopy(d)) for p, d in zip(CONFIG_FILES, DOCS)}
     assert got == {"field_basler_px4.yaml": "valid", "px4_jmavsim.yaml": "valid",
                    "px4_sitl.yaml": "valid",
-                   "replay.yaml": "refused", "sitl_synthetic.yaml": "valid"}
+                   "replay.yaml": "refused", "sim_gusts.yaml": "valid",
+                   "sitl_synthetic.yaml": "valid"}
 
 
 @settings(FUZZ, max_examples=25)
