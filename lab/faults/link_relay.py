@@ -18,8 +18,8 @@ While a fault is injected it does what a bad radio link does:
 The simulator's ground truth (HIL_STATE_QUATERNION, on the same UDP link only because SITL
 puts it there) passes untouched: it stands for the world, which no radio fault delays.
 
-Testing only: a relay on the flight link adds a hop and a thread; the ``mavsdk`` vehicle starts
-one only with ``fault_relay: true``.
+Testing only: a relay on the flight link adds a hop and a thread; the ``faults`` section starts
+one only when it injects a link fault into a ``mavsdk`` vehicle.
 """
 
 from __future__ import annotations
