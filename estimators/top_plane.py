@@ -425,12 +425,16 @@ class TopPlaneFitter:
 
     def fit(self, detection: Detection, view: CameraView, *, plane_down_m: float,
             yaw_hint_deg: float | None = None, region_hint: str | None = None,
-            iterations: int = 4, silhouette: bool = False) -> PlaneFit | None:
+            iterations: int = 4, silhouette: bool = False,
+            yaw_hint_span_deg: float | None = None) -> PlaneFit | None:
         if region_hint is not None and region_hint not in REGIONS:
             raise ValueError(f"region_hint: must be one of {REGIONS}, got {region_hint!r}")
         fit = fit_on_top_plane(view.model, view.camera_pose_ned, detection.center_px,
                                detection.corners_px, self.target, ground_down_m=plane_down_m,
-                               yaw_step_deg=self.config.yaw_step_deg, iterations=iterations,
+                               yaw_step_deg=(self.config.yaw_step_deg
+                                             if yaw_hint_deg is None or yaw_hint_span_deg is None
+                                             else yaw_hint_span_deg),
+                               iterations=iterations,
                                yaw_hint_deg=yaw_hint_deg, region_hint=region_hint)
         if fit is None or not silhouette or detection.hull_px is None \
                 or yaw_hint_deg is not None:

@@ -78,6 +78,8 @@ class FitHint:
     region: str
     silhouette_iou: float | None = None
     silhouette_yaw_deg: float | None = None
+    span_deg: float | None = None
+    """Cut views are fitted within +- this of ``yaw_deg`` (None: the fitter's step)."""
 
 
 def colour_outline(det: Detection, frame: Frame, appearance: TargetAppearance | None,
@@ -516,6 +518,7 @@ class Perception:
             return (None, None, False, "plane fit: the detection is cut by the image border and "
                     "no complete view gave the target's heading yet", None)
         yaw_hint = hint.yaw_deg if (cut and hint is not None) else None
+        yaw_span = hint.span_deg if (cut and hint is not None) else None
         region_hint = hint.region if (cut and hint is not None) else None
         if tracked:
             # a colour region is the whole silhouette: the top and the shaded sides share the
@@ -527,16 +530,17 @@ class Perception:
         fit = fitter.fit(det if outline is None else replace(det, hull_px=outline), view,
                          plane_down_m=plane_ground, yaw_hint_deg=yaw_hint,
                          region_hint=region_hint, iterations=8 if cut else 4,
-                         silhouette=outline is not None)
+                         silhouette=outline is not None, yaw_hint_span_deg=yaw_span)
         new_hint = None
         if fit is not None and not cut and fit.cost <= p.plane_fit_max_cost and req.close_range:
             # the heading for the cut views to come: the outline's when it fits the target
             # (within a few degrees; the MBR fit's, on a 15 deg grid, mirrors now and then)
-            yaw = fit.yaw_deg
+            yaw, span = fit.yaw_deg, None
             if (fit.silhouette_yaw_deg is not None and fit.silhouette_iou is not None
                     and fit.silhouette_iou >= p.silhouette_heading_min_iou):
-                yaw = fit.silhouette_yaw_deg
-            new_hint = FitHint(yaw, fit.region, fit.silhouette_iou, fit.silhouette_yaw_deg)
+                yaw, span = fit.silhouette_yaw_deg, p.silhouette_heading_span_deg
+            new_hint = FitHint(yaw, fit.region, fit.silhouette_iou, fit.silhouette_yaw_deg,
+                               span)
         if fit is None or fit.cost > p.plane_fit_max_cost:
             if req.close_range:
                 why = "no fit" if fit is None else f"MBR mismatch {fit.cost:.2f}"

@@ -57,6 +57,10 @@ def _add(p: argparse.ArgumentParser) -> None:
                    help="run at wall-clock speed even when everything could run in virtual time")
     p.add_argument("--detector", metavar="NAME",
                    help="fly with this detector plugin instead of the config's (e.g. mss)")
+    p.add_argument("--manipulator", metavar="TYPE",
+                   help="fly with this manipulator plugin instead of the config's (e.g. "
+                        "simulated_arm; the config's params when it names the same type, else "
+                        "the plugin's defaults: docs/manipulators.md)")
     p.add_argument("--dry-run", action="store_true",
                    help="open the cameras, grab and check a frame each, connect, check home, "
                         "GPS, rangefinder and the autopilot's failsafe parameters; never arm")
@@ -184,6 +188,10 @@ def _run(args: argparse.Namespace) -> int:
     data = cfg.model_dump()
     if args.detector:
         data["detector"] = {"type": args.detector, "params": {}}
+    if args.manipulator:
+        same = data["manipulator"]["type"] == args.manipulator
+        data["manipulator"] = {"type": args.manipulator,
+                               "params": data["manipulator"]["params"] if same else {}}
     if args.vehicle == "simulated":
         data["vehicle"] = {"type": "simulated", "params": {}}
     if args.record_quality is not None and data.get("recording"):

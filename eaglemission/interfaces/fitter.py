@@ -16,11 +16,13 @@ class PlaneFitter(Protocol):
     ``fit`` is synchronous and I/O-free. ``plane_down_m`` is the down coordinate (NED, the
     vehicle's estimated frame) of the ground the target stands on; ``yaw_hint_deg`` and
     ``region_hint`` (from an earlier complete view) restrict the hypotheses of a view cut by
-    the image border. With ``silhouette``, a fit of a whole view of a detection that carries
+    the image border, the headings to +-``yaw_hint_span_deg`` around the hint (None: the
+    fitter's own step). With ``silhouette``, a fit of a whole view of a detection that carries
     its outline (``hull_px``) also measures ``PlaneFit.silhouette_iou``. Returns None when no
     hypothesis projects (misuse raises ``ValueError``).
     """
 
     def fit(self, detection: Detection, view: CameraView, *, plane_down_m: float,
             yaw_hint_deg: float | None = None, region_hint: str | None = None,
-            iterations: int = 4, silhouette: bool = False) -> PlaneFit | None: ...
+            iterations: int = 4, silhouette: bool = False,
+            yaw_hint_span_deg: float | None = None) -> PlaneFit | None: ...

@@ -112,6 +112,16 @@ def test_a_passing_dry_run_has_its_own_exit_line(capsys: pytest.CaptureFixture[s
     assert not any("DONE" in line for line in out)
 
 
+def test_run_flies_the_manipulator_named_on_the_command_line(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    mission = str(_write(_sim(), tmp_path / "m.yaml"))
+    assert main(["run", mission, "--manipulator", "simulated_arm", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "manipulator: simulated_arm (simulated X-Y-Z arm: box +-10 x +-10 x +-8 cm" in out
+    assert main(["run", mission, "--manipulator", "no_such_arm", "--dry-run"]) == 2
+    assert "no manipulator plugin named 'no_such_arm'" in capsys.readouterr().err
+
+
 def test_a_missing_serial_device_is_named_with_the_fix(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("mavsdk")

@@ -27,6 +27,9 @@ if TYPE_CHECKING:  # the vehicle calls these with itself; imported for the annot
 
 log = logging.getLogger(__name__)
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
+TAKEOFF_PARAM_SETTLE_S = 1.0
+"""From a changed MIS_TAKEOFF_ALT to the takeoff command (PX4's navigator loop runs at
+>= 20 Hz; the margin covers a loaded SITL)."""
 
 
 async def arm(v: MavsdkVehicle) -> None:
@@ -114,15 +117,20 @@ async def request_truth(v: MavsdkVehicle) -> None:
 
 
 async def set_takeoff_altitude(v: MavsdkVehicle, act: Any, altitude_m: float) -> None:
-    """MIS_TAKEOFF_ALT set and read back: once on a local PX4 SITL the set returned SUCCESS
-    but PX4 then took off to its 2.5 m default ("Using default takeoff altitude: 2.5 m") and
-    the mission's TAKEOFF timed out. A second try, then a refusal naming the parameter."""
-    got = math.nan
+    """MIS_TAKEOFF_ALT set (when it differs) and read back, then :data:`TAKEOFF_PARAM_SETTLE_S`
+    before the takeoff command: PX4's navigator reads the parameter on its own loop, and a
+    takeoff sent right after the set climbed to the old value on PX4 + jMAVSim ("Using
+    default takeoff altitude: 2.5 m", the mission's TAKEOFF timed out). A second try, then a
+    refusal naming the parameter."""
+    got = await v.get_param("MIS_TAKEOFF_ALT")
+    if abs(got - altitude_m) < 0.05:
+        return
     for _ in range(2):
         await v.bounded("takeoff()", lambda: act.set_takeoff_altitude(altitude_m),
                         params=(altitude_m,))
         got = await v.get_param("MIS_TAKEOFF_ALT")
         if abs(got - altitude_m) < 0.05:
+            await v.clock.sleep(TAKEOFF_PARAM_SETTLE_S)
             return
         log.warning("takeoff(): MIS_TAKEOFF_ALT reads %.2f m after setting %.2f m: again",
                     got, altitude_m)

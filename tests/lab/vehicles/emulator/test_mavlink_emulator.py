@@ -216,14 +216,16 @@ async def test_scenario_a_takeoff_hold_land_like_px4(px4_tlogs: Path) -> None:
     acks = [m for m in ours if m.get_type() == "COMMAND_ACK"]
     assert Counter(m.command for m in cmds) == Counter(m.command for m in acks)
     assert {m.result for m in acks} == {M.MAV_RESULT_ACCEPTED}
-    # PARAM_SET MIS_TAKEOFF_ALT answered with two PARAM_VALUEs, as PX4 does; the driver then
-    # reads it back (PARAM_REQUEST_READ: one more), the recorded plain MAVSDK client did not
+    # PARAM_SET MIS_TAKEOFF_ALT answered with two PARAM_VALUEs, as PX4 does; the driver reads
+    # it before (it differs) and after the set (PARAM_REQUEST_READ: one more each), the
+    # recorded plain MAVSDK client did not
     pv = [m for m in ours if m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT"]
     ref_pv = [m for m in ref if m.get_type() == "PARAM_VALUE" and m.param_id == "MIS_TAKEOFF_ALT"]
     reads = [t.msg for t in emu.traffic if t.direction == "in"
              and t.msg.get_type() == "PARAM_REQUEST_READ" and t.msg.param_id == "MIS_TAKEOFF_ALT"]
-    assert len(ref_pv) == 2 and len(reads) == 1
-    assert len(pv) == len(ref_pv) + len(reads) and {m.param_value for m in pv} == {5.0}
+    assert len(ref_pv) == 2 and len(reads) == 2
+    assert len(pv) == len(ref_pv) + len(reads)
+    assert pv[0].param_value != 5.0 and {m.param_value for m in pv[1:]} == {5.0}
 
 
 async def test_scenario_c_mission_then_rtl_like_px4(px4_tlogs: Path) -> None:
