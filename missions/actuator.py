@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
-import math
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -33,9 +32,6 @@ log = logging.getLogger(__name__)
 
 ARM_CHECK_S = 0.02
 """How often GRASP_READY checks an arm's measured tool-to-target error (mission clock)."""
-ARM_SETTLED_M = 0.002
-"""The arm has settled when its measured error shrinks by less than this between two checks
-(an arm still moving at 0.5 m/s closes 1 cm per check)."""
 
 COM_OBL_RC_ACT_NAMES = {0: "Position mode", 1: "Altitude mode", 2: "Manual", 3: "Return",
                         4: "Land", 5: "Hold", 6: "Terminate", 7: "Disarm"}
@@ -192,19 +188,17 @@ class Actuator:
 
     async def _arm_within_tolerance(self) -> bool:
         """Wait (at most ``timeouts.grasp_ready_s``) until the arm's measured tool-to-target
-        error is within ``grasp.tolerance_m`` and the arm has settled (the error no longer
-        shrinks by :data:`ARM_SETTLED_M` per check: closing while the tool still moves in
-        wastes the arm's precision); False when it never was."""
+        error is within ``grasp.tolerance_m`` with the arm settled at the point last commanded
+        (closing while the tool still moves spends the arm's precision); False when it never
+        was."""
         assert self.arm is not None
         tol = self.grasp_p.tolerance_m
         deadline = self.clock.now_ns() + int(self.timeouts.grasp_ready_s * 1e9)
-        previous = math.inf
         while not self.stopping:
             err = self.arm.measured_error()
-            if err is not None and err <= tol and err > previous - ARM_SETTLED_M:
+            if err is not None and err <= tol and self.arm.settled():
                 self.grasp_error_at_close_m = err
                 return True
-            previous = math.inf if err is None else err
             if self.clock.now_ns() > deadline:
                 break
             await self.clock.sleep(ARM_CHECK_S)

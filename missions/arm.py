@@ -32,6 +32,8 @@ from eaglemission.types import XYZ, VehicleState
 
 TOOL_RADIUS_M = 0.04
 """How far around its point an arm's tool (gripper and the slide above it) can cover the view."""
+SETTLED_M = 0.002
+"""The arm has settled when its read-back is this close to the point last commanded."""
 
 
 def grasp_point_body(position_ned_m: Sequence[float], attitude_q: Sequence[float],
@@ -71,6 +73,7 @@ class ArmTracking:
         self.wake = asyncio.Event()
         self.commands = 0
         self._failed = ""
+        self._goal_body: XYZ | None = None
 
     @property
     def arm(self) -> Manipulator:
@@ -85,11 +88,21 @@ class ArmTracking:
     def follow(self, tracks: bool) -> None:
         """A state change: track while the state's policy says so (woken now)."""
         self.tracking = self.enabled and tracks
+        self._goal_body = None
         self.wake.set()
 
     def hold(self) -> None:
         """The gripper closes: stop tracking (the arm holds what it grasped)."""
         self.tracking = False
+
+    def settled(self) -> bool:
+        """The tool (its read-back) is at the point last commanded since tracking started
+        (clamped to the workspace): it has stopped moving towards the target."""
+        goal = self._goal_body
+        if goal is None:
+            return False
+        tool = self.arm.report().tool_body_m
+        return all(math.isfinite(v) for v in tool) and math.dist(tool, goal) <= SETTLED_M
 
     def measured_error(self) -> float | None:
         """The measured tool-to-target error now (None: no target or read-back)."""
@@ -154,6 +167,9 @@ class ArmTracking:
             try:
                 await self.arm.move_to(goal, timeout_s=self.command_s)
                 self.commands += 1
+                home = self.arm.home_m
+                off = self.workspace.clamp_offset(offset_from_home(goal, home))
+                self._goal_body = (home[0] + off[0], home[1] + off[1], home[2] + off[2])
             except (errors.EagleMissionError, TimeoutError) as exc:
                 text = f"{type(exc).__name__}: {exc}"
                 if text != self._failed:

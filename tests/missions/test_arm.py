@@ -76,6 +76,36 @@ def test_tracking_brings_the_measured_error_to_zero() -> None:
     assert t.error_m(vs, TARGET) == pytest.approx(0.0, abs=1e-9)
 
 
+def test_settled_only_once_the_tool_reaches_the_point_last_commanded() -> None:
+    """Within the latency the tool has not moved yet (its error unchanged): not settled."""
+    clock = ManualClock()
+    base = (TARGET[0] - 0.45, TARGET[1], TARGET[2] - 0.525)
+    vs = _vs(base[0] + 0.01, base[1] - 0.005, base[2])
+    t = _tracking(clock, vs, latency_s=0.04, joint_speed_mps=0.5)
+    assert not t.settled()  # nothing commanded yet
+    seen: list[tuple[float, bool]] = []
+
+    async def fly() -> None:
+        t.follow(True)
+        task = asyncio.create_task(t.run())
+        for _ in range(10):
+            await asyncio.sleep(0)
+            seen.append((t.error_m(vs, TARGET) or 0.0, t.settled()))
+            clock.advance(0.02)
+            t.wake.set()
+            await asyncio.sleep(0)
+        t.stopping = True
+        t.wake.set()
+        await asyncio.wait_for(task, timeout=5.0)
+
+    asyncio.run(fly())
+    first_error = seen[0][0]
+    assert first_error == pytest.approx(math.hypot(0.01, 0.005))
+    # during the latency the error stands still and the arm is not settled
+    assert seen[1][0] == pytest.approx(first_error) and not seen[1][1]
+    assert seen[-1][1] and seen[-1][0] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_no_command_while_tracking_is_off() -> None:
     clock = ManualClock()
     vs = _vs(TARGET[0] - 0.40, TARGET[1], TARGET[2] - 0.525)
