@@ -99,9 +99,10 @@ class PerceptionConfig(StrictModel):
         "fitted around (the outline's heading, else the plane fit's; needs target.color_bgr; "
         "not in the paper; docs/mission.md, \"The final approach\")")
     silhouette_heading_span_deg: float = Field(
-        2.0, gt=0, le=90, description="a view cut by the image border is fitted within +- "
-        "this of a heading the outline gave (the plane fit's heading: +- the fitter's step); "
-        "a wider band lets the cut view's fit turn and shift the target by centimetres")
+        3.0, gt=0, le=90, description="a view cut by the image border is fitted within +- "
+        "this of a heading the outline gave (one step of its 3 deg grid; the plane fit's "
+        "heading: +- the fitter's step); a wider band lets the cut view's fit turn and shift "
+        "the target by centimetres")
     vertical_reference: Literal["ground", "estimate", "hybrid"] = Field(
         "hybrid", description="range of the target: `ground` = the estimate's direction meets "
         "the plane of the target's top (flat ground at home's height, docs/conventions.md), "
