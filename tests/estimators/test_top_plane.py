@@ -208,7 +208,9 @@ def test_polygon_iou() -> None:
     assert polygon_iou(a, b) == pytest.approx(25.0 / 175.0)
 
 
-def test_the_fitter_measures_the_silhouette_of_whole_views_only_when_asked(sitl_config) -> None:
+def _whole_view_at_30_deg(sitl_config):
+    """The narrow camera 2.5 m behind and 1.5 m above the target (heading 30 deg), its whole
+    outline as the detection: (fitter, detection, view)."""
     model = sitl_config.cameras.narrow.to_model("narrow")
     t = sitl_config.target
     top = np.array([0.0, 0.0, -t.height_m])
@@ -220,6 +222,11 @@ def test_the_fitter_measures_the_silhouette_of_whole_views_only_when_asked(sitl_
     det = Detection(1.0, rect[0], cv2.boxPoints(rect), (max(rect[1]), min(rect[1])), rect[2],
                     rect[1][0] * rect[1][1], hull_px=hull)
     fitter = TopPlaneFitter(target=t)
+    return fitter, det, view
+
+
+def test_the_fitter_measures_the_silhouette_of_whole_views_only_when_asked(sitl_config) -> None:
+    fitter, det, view = _whole_view_at_30_deg(sitl_config)
     assert fitter.fit(det, view, plane_down_m=0.0).silhouette_iou is None
     whole = fitter.fit(det, view, plane_down_m=0.0, silhouette=True)
     assert whole is not None and whole.silhouette_iou is not None and whole.silhouette_iou > 0.95
@@ -230,17 +237,7 @@ def test_the_fitter_measures_the_silhouette_of_whole_views_only_when_asked(sitl_
 def test_a_hinted_fit_turns_only_within_the_hints_span(sitl_config) -> None:
     """A hint 10 deg off the true heading: the fitter's own band (+-15 deg) reaches the true
     heading, a +-2 deg span keeps the fit's heading within 2 deg of the hint."""
-    model = sitl_config.cameras.narrow.to_model("narrow")
-    t = sitl_config.target
-    top = np.array([0.0, 0.0, -t.height_m])
-    state = VehicleState(timestamp_ns=1, position_ned_m=(-2.5, 0.0, top[2] - 1.5),
-                         velocity_ned_mps=(0.0, 0.0, 0.0), attitude_q=euler_to_quat(0, 0, 0))
-    view = CameraView(model, state, 1)
-    hull = _outline(model, view.camera_pose_ned, top, 30.0, t.length_m, t.width_m, t.height_m)
-    rect = cv2.minAreaRect(hull.astype(np.float32))
-    det = Detection(1.0, rect[0], cv2.boxPoints(rect), (max(rect[1]), min(rect[1])), rect[2],
-                    rect[1][0] * rect[1][1], hull_px=hull)
-    fitter = TopPlaneFitter(target=t)
+    fitter, det, view = _whole_view_at_30_deg(sitl_config)
     free = fitter.fit(det, view, plane_down_m=0.0, yaw_hint_deg=40.0)
     narrow = fitter.fit(det, view, plane_down_m=0.0, yaw_hint_deg=40.0, yaw_hint_span_deg=2.0)
     assert free is not None and narrow is not None
