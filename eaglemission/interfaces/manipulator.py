@@ -45,6 +45,8 @@ class Manipulator(Protocol):
     """The tool's home point in body FRD (the mission file's ``tool_point_m``)."""
     workspace: Workspace | None
     """Where the tool can go around ``home_m``; None: it cannot move (``fixed``)."""
+    # optional: ``marker`` (a :class:`~eaglemission.geometry.tool_marker.ToolMarker` or None),
+    # a fiducial on the tool the cameras measure it by (missions/tool_sight.py)
 
     async def start(self, *, timeout_s: float) -> None:
         """Ready the tool (connect, home it); bounded."""

@@ -148,7 +148,8 @@ class SyntheticCamera:
         arm = None if self._shared is None else self._shared.get(MANIPULATOR)
         tool = None if arm is None else arm.tool_body_at(render_ns)
         image, truth = self.world.render(self.model, position, attitude, render_ns,
-                                         exposure_start_pose=start, tool_body_m=tool)
+                                         exposure_start_pose=start, tool_body_m=tool,
+                                         tool_marker=getattr(arm, "marker", None))
         with self._lock:
             self.seq += 1
             seq = self.seq

@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from eaglemission.clock import Clock
 from eaglemission.errors import ConfigError, TimeoutError_
 from eaglemission.flight.context import MANIPULATOR, SharedContext
+from eaglemission.geometry.tool_marker import ToolMarker
 from eaglemission.geometry.workspace import Workspace
 from eaglemission.interfaces import ToolReport
 from eaglemission.types import XYZ
@@ -43,6 +44,9 @@ class SimulatedArmConfig(BaseModel):
         0.3, description="from the close command to the gripper closed")
     drawn: bool = Field(True, description="the synthetic cameras draw the arm where it is "
                         "in view")
+    marker: ToolMarker | None = Field(
+        default_factory=ToolMarker, description="the ArUco marker on the gripper's back face "
+        "(the cameras measure the tool by it: docs/manipulators.md); null: none")
 
     def model_post_init(self, _context: Any) -> None:
         ws = self.workspace
@@ -70,6 +74,7 @@ class SimulatedArm:
         self.home_m: XYZ = (float(tool_point_m[0]), float(tool_point_m[1]),
                             float(tool_point_m[2]))
         self.workspace: Workspace | None = self.config.workspace
+        self.marker: ToolMarker | None = self.config.marker
         self._lock = threading.Lock()
         self._t_ns: int | None = None
         self._joints: list[float] = [0.0, 0.0, 0.0]

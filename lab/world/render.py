@@ -35,6 +35,7 @@ inputs give the same bytes.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import threading
 import zlib
@@ -82,6 +83,8 @@ from eaglemission.geometry import (
     R_to_euler,
     quat_to_R,
 )
+from eaglemission.geometry.tool_marker import ToolMarker, marker_axes_body, marker_corners_body
+from eaglemission.perception.tool_marker import marker_image
 from eaglemission.types import XYZ, Points2
 
 __all__ = ["BGRA_LEVEL_BUDGET_BYTES", "DEFAULT_TARGET_BGR", "SKY_HORIZON_BGR", "SKY_ZENITH_BGR",
@@ -95,6 +98,12 @@ ARM_ROD_M = 0.015  # the slide's square section
 ARM_BLOCK_M = 0.04  # the gripper block's side, centred on the tool point
 ARM_ROD_BGR = (45, 45, 45)
 ARM_BLOCK_BGR = (90, 90, 90)
+
+
+@functools.lru_cache(maxsize=4)
+def _marker_bitmap(marker: ToolMarker) -> NDArray[np.uint8]:
+    """The marker's black square, 96 px a side (warped onto its face in each frame)."""
+    return marker_image(marker, 96)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -325,7 +334,8 @@ class SyntheticWorld:
     def render(self, model: CameraModel, position_ned_m: Sequence[float],
                attitude_q: Sequence[float], timestamp_ns: int, *,
                exposure_start_pose: tuple[Sequence[float], Sequence[float]] | None = None,
-               tool_body_m: Sequence[float] | None = None
+               tool_body_m: Sequence[float] | None = None,
+               tool_marker: ToolMarker | None = None
                ) -> tuple[NDArray[np.uint8], GroundTruth]:
         """Render what ``model`` sees from a vehicle at ``position_ned_m`` with attitude
         ``attitude_q`` (body FRD -> NED), with the world as it is at ``timestamp_ns``.
@@ -337,7 +347,8 @@ class SyntheticWorld:
         angular rate over the exposure; :mod:`.imaging`).
 
         ``tool_body_m``: an arm's tool point in body FRD (a simulated manipulator): the arm is
-        drawn under the body: a small grey gripper block on the end of a dark Z slide.
+        drawn under the body: a small grey gripper block on the end of a dark Z slide;
+        ``tool_marker``: the ArUco marker on its white plate on the gripper.
 
         Returns the BGR image (H, W, 3) uint8 and its :class:`GroundTruth` (``timestamp_ns``
         and ``render_time_ns`` both set to ``timestamp_ns``).
@@ -352,6 +363,9 @@ class SyntheticWorld:
         self._render_objects(img, ctx.K_true, R_on, C, int(timestamp_ns))
         if tool_body_m is not None:
             self._render_arm(img, ctx.K_true, R_on, C, position_ned_m, attitude_q, tool_body_m)
+            if tool_marker is not None:
+                self._render_marker(img, ctx.K_true, R_on, C, position_ned_m, attitude_q,
+                                    tool_body_m, tool_marker)
         sim = self.simulation
         blur = (0.0, 0.0)
         if sim.motion_blur and exposure_start_pose is not None:
@@ -449,6 +463,50 @@ class SyntheticWorld:
                 if float(n_ned @ (C - v_ned[0])) <= 0.0:
                     continue
                 self._fill_face(img, K, R_on, C, v_ned, self.face_colour(colour, n_ned), W, H)
+
+    def _render_marker(self, img: NDArray[np.uint8], K: NDArray[np.float64],
+                       R_on: NDArray[np.float64], C: NDArray[np.float64],
+                       position_ned_m: Sequence[float], attitude_q: Sequence[float],
+                       tool_body_m: Sequence[float], marker: ToolMarker) -> None:
+        """The tool's marker on its white plate, lit like the face it lies on; only when the
+        face is turned to the camera and the whole marker is in front of it."""
+        H, W = img.shape[:2]
+        R_nb = quat_to_R(attitude_q)
+        p = np.asarray(position_ned_m, dtype=np.float64)
+        tool = (float(tool_body_m[0]), float(tool_body_m[1]), float(tool_body_m[2]))
+        n_ned = R_nb @ marker_axes_body(marker.facing)[:, 2]
+        square = marker_corners_body(marker, tool) @ R_nb.T + p
+        if float(n_ned @ (C - square[0])) <= 0.0:
+            return
+        if marker.plate_m > 0:
+            plate = marker_corners_body(marker, tool, marker.plate_m) @ R_nb.T + p
+            self._fill_face(img, K, R_on, C, plate, self.face_colour((235, 235, 235), n_ned),
+                            W, H)
+        cam = (square - C) @ R_on.T
+        if not (cam[:, 2] > NEAR_PLANE_M).all():
+            return
+        uv = cam @ K.T
+        uv = uv[:, :2] / uv[:, 2:3]
+        u0, v0 = np.floor(uv.min(axis=0)).astype(int)
+        u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
+        if u1 <= 0 or v1 <= 0 or u0 >= W or v0 >= H or u1 - u0 > 2 * W or v1 - v0 > 2 * H:
+            return
+        a0, b0, a1, b1 = max(u0, 0), max(v0, 0), min(u1, W), min(v1, H)
+        bitmap = _marker_bitmap(marker)
+        n = float(bitmap.shape[0])
+        src = np.array([[0, 0], [n, 0], [n, n], [0, n]], dtype=np.float32) - np.float32(0.5)
+        dst = (uv - (a0, b0)).astype(np.float32)
+        Hm = cv2.getPerspectiveTransform(src, dst)
+        size = (a1 - a0, b1 - b0)
+        shade = self.shade(n_ned)
+        face = cv2.warpPerspective(bitmap, Hm, size, flags=cv2.INTER_AREA,
+                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        inside = cv2.warpPerspective(np.full_like(bitmap, 255), Hm, size, flags=cv2.INTER_AREA,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        roi = img[b0:b1, a0:a1].astype(np.float32)
+        alpha = (inside.astype(np.float32) / 255.0)[..., None]
+        lit = (face.astype(np.float32) * min(1.0, 235 / 255 * shade))[..., None]
+        img[b0:b1, a0:a1] = np.clip(roi * (1 - alpha) + lit * alpha, 0, 255).astype(np.uint8)
 
     def shadow_polygon_ned(self, obj_faces: Sequence[tuple[NDArray[np.float64],
                                                            NDArray[np.float64]]],

@@ -20,6 +20,7 @@ from eaglemission.drivers.vehicles.mavsdk.outputs import ServoOutputs
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from eaglemission.errors import ConfigError, DriverError, TimeoutError_
+from eaglemission.geometry.tool_marker import ToolMarker
 from eaglemission.geometry.workspace import Workspace
 from eaglemission.interfaces import ToolReport
 from eaglemission.types import XYZ
@@ -82,6 +83,9 @@ class ServoArmConfig(BaseModel):
         None, description="actuator-set index of a servo gripper (+1 closed); null: the "
         "autopilot's gripper (DO_GRIPPER, the vehicle's grab)")
     gripper_output: _Output | None = None
+    marker: ToolMarker | None = Field(
+        None, description="an ArUco marker fixed to the gripper, where it is: the cameras "
+        "measure the tool by it (docs/manipulators.md); null: none")
 
     @model_validator(mode="after")
     def _consistent(self) -> ServoArmConfig:
@@ -118,6 +122,7 @@ class ServoArm:
         self.home_m: XYZ = (float(tool_point_m[0]), float(tool_point_m[1]),
                             float(tool_point_m[2]))
         self.workspace: Workspace | None = self.config.workspace
+        self.marker: ToolMarker | None = self.config.marker
         self._sent: list[float | None] = [None, None, None]
         self._goal: XYZ = (0.0, 0.0, 0.0)
         self._sender: asyncio.Task[None] | None = None
