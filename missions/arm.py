@@ -10,7 +10,9 @@ vehicle's pose the telemetry, the tool's position the arm's own read-back. The g
 * :meth:`ArmTracking.run` commands the tool to the grasp point whenever it is woken (every
   processed frame and every setpoint tick) while tracking is on;
 * :meth:`ArmTracking.error_m`: the measured tool-to-target error the gripper waits for;
-* :meth:`ArmTracking.hides`: the tool covers a view of the target (the shape check skips it).
+* :meth:`ArmTracking.hides`: the tool covers a view of the target (the shape check skips it);
+* ``sight``: with a marker on the tool, the cameras' correction of their target estimates
+  relative to the tool (:mod:`.tool_sight`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.log import MissionLog
+from eaglemission.missions.tool_sight import ToolSight
 
 from eaglemission import errors
 from eaglemission.geometry import CameraModel, camera_pose_ned, quat_to_R
@@ -52,28 +55,40 @@ class ArmTracking:
 
     @classmethod
     def of(cls, manipulator: Manipulator | None, log: MissionLog, params: ApproachConfig, *,
-           state: Callable[[], tuple[VehicleState, XYZ | None]]) -> ArmTracking:
+           state: Callable[[], tuple[VehicleState, XYZ | None]],
+           measured: Callable[[], tuple[VehicleState, XYZ | None]] | None = None
+           ) -> ArmTracking:
         """For the approach's params: the grasp distance, the command timeout, the setpoint
         rate as the tracking period."""
         return cls(manipulator, log, grasp_distance_m=params.grasp.distance_m,
                    command_s=params.timeouts.command_s,
-                   period_s=1.0 / params.guidance.setpoint_rate_hz, state=state)
+                   period_s=1.0 / params.guidance.setpoint_rate_hz, state=state,
+                   measured=measured)
 
     def __init__(self, arm: Manipulator | None, log: MissionLog, *, grasp_distance_m: float,
                  command_s: float, period_s: float,
-                 state: Callable[[], tuple[VehicleState, XYZ | None]]) -> None:
+                 state: Callable[[], tuple[VehicleState, XYZ | None]],
+                 measured: Callable[[], tuple[VehicleState, XYZ | None]] | None = None
+                 ) -> None:
+        """``state``: the vehicle's pose and the target to aim at (the best estimate there
+        is); ``measured``: the pose and the target as the cameras measured it just now (None
+        when they have not), what the gripper waits for; by default ``state``."""
         self.enabled = arm is not None and arm.workspace is not None
         self._arm, self.log = arm, log
         self._workspace = None if arm is None else arm.workspace
         self.grasp_distance_m = grasp_distance_m
         self.command_s, self.period_s = command_s, period_s
         self._state = state
+        self._measured = state if measured is None else measured
         self.tracking = False
         self.stopping = False
         self.wake = asyncio.Event()
         self.commands = 0
         self._failed = ""
         self._goal_body: XYZ | None = None
+        marker = None if arm is None or not self.enabled else getattr(arm, "marker", None)
+        self.sight = None if marker is None else ToolSight(marker, log)
+        """The cameras' sightings of the tool's marker (None: the tool carries none)."""
 
     @property
     def arm(self) -> Manipulator:
@@ -105,8 +120,9 @@ class ArmTracking:
         return all(math.isfinite(v) for v in tool) and math.dist(tool, goal) <= SETTLED_M
 
     def measured_error(self) -> float | None:
-        """The measured tool-to-target error now (None: no target or read-back)."""
-        vs, target = self._state()
+        """The measured tool-to-target error now (None: no fresh camera measurement of the
+        target, or no read-back)."""
+        vs, target = self._measured()
         return None if target is None else self.error_m(vs, target)
 
     def goal_body(self, vs: VehicleState, target_ned_m: XYZ) -> XYZ:
@@ -157,6 +173,9 @@ class ArmTracking:
             except TimeoutError:
                 pass
             self.wake.clear()
+            if self.sight is not None:
+                report = self.arm.report()
+                self.sight.record(report.timestamp_ns, report.tool_body_m)
             if not self.tracking:
                 continue
             vs, target = self._state()

@@ -54,7 +54,7 @@ from eaglemission.missions.perception import (
 )
 from eaglemission.missions.result import MissionResult
 from eaglemission.missions.telemetry_watch import TelemetryWatch
-from eaglemission.missions.tracking import TargetTracking
+from eaglemission.missions.tracking import GRIPPER_MIN_FIXES, TargetTracking
 from eaglemission.missions.views import CameraChoice, project_target
 
 from eaglemission import errors
@@ -127,8 +127,12 @@ class MissionRunner:
                                     perception=params.perception, plane=params.plane,
                                     grasp=params.grasp)
         self.guidance = gd.Guidance(gd.Plan.of(cfg, params.grasp.distance_m), params.guidance)
-        self.arm = ArmTracking.of(manipulator, mission_log, params, state=lambda: (
-            self.telemetry.current(), self.track.arm_target_ned_m(self.clock.now_ns())))
+        self.arm = ArmTracking.of(
+            manipulator, mission_log, params,
+            state=lambda: (self.telemetry.current(),
+                           self.track.arm_target_ned_m(self.clock.now_ns())),
+            measured=lambda: (self.telemetry.current(), self.track.fresh_fix_ned_m(
+                self.clock.now_ns(), min_fixes=GRIPPER_MIN_FIXES)))
         self.track.arm = self.arm if self.arm.enabled else None
         self.actuator = Actuator(  # the grasp pose is held for the stable period before leaving
             cfg, self.vehicle, clock, mission_log, self.guidance, grasp=params.grasp,
@@ -299,6 +303,8 @@ class MissionRunner:
                                       meas.frame.seq, None if det is None else det.center_px))
         if det is not None:
             self._detected[cam_id] += 1
+        if self.policy.close_range and self.arm.sight is not None:
+            self.arm.sight.observe(meas.frame, self.models[cam_id])
         applied = self.track.apply(meas, self.policy, self.telemetry.current(), self.clock.now_ns(),
                                    self._t_s())
         if applied.fresh:

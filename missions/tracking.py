@@ -8,10 +8,12 @@ and the current state's policy; what it may do in that state is the policy's dat
 
 from __future__ import annotations
 
+import collections
 import math
 import statistics
 from dataclasses import dataclass
 
+import numpy as np
 from eaglemission.missions import guidance as gd
 from eaglemission.missions.approach import StatePolicy
 from eaglemission.missions.approach_config import (
@@ -40,8 +42,17 @@ from eaglemission.names import CAMERA_NARROW, CAMERA_WIDE
 from eaglemission.types import XYZ, VehicleState
 
 ARM_FIX_MAX_AGE_S = 0.3
-"""An arm aims at the latest fine estimate while it is at most this old (two or three frames
-at the default processing rate), else at the filter's position."""
+"""An arm aims at the latest fine estimates while the newest is at most this old (two or three
+frames at the default processing rate), else at the filter's position."""
+FIX_WINDOW_S = 0.6
+"""The arm's aim is the median of the fine estimates of this last stretch (a cut view's range
+swings by centimetres from frame to frame; the target does not move)."""
+GRIPPER_MIN_FIXES = 3
+"""The gripper's measured error needs this many fine estimates in the window."""
+KEPT_UNACCEPTED_LIMIT = 3
+"""While tracking, this many kept boxes in a row that give the filter nothing it accepts (an
+estimate outside its gate, a plane fit that refuses the box) make the keepers let go: their
+tracker follows something else, and the detector looks again."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,10 +104,13 @@ class TargetTracking:
         self.silhouettes: list[float] = []
         """Their silhouette IoUs (:func:`~eaglemission.estimators.top_plane.silhouette_iou`)."""
         self.drops = 0
-        """How often the mission dropped its target (lost, rejected): perception's keepers let
-        it go when this changes."""
-        self.latest_fix: tuple[int, XYZ] | None = None
-        """(frame stamp, position) of the latest fine estimate the filter accepted."""
+        """How often the mission dropped its target (lost, rejected) or its keepers' box:
+        perception's keepers let it go when this changes."""
+        self.kept_unaccepted = 0
+        """Kept boxes in a row that gave the filter nothing it accepted."""
+        self.fixes: collections.deque[tuple[int, XYZ]] = collections.deque(maxlen=32)
+        """(frame stamp, position) of the latest fine estimate the filter accepted (with an arm
+        whose tool the camera sees, corrected relative to the tool: :mod:`.tool_sight`)."""
         self.arm: ArmTracking | None = None
         """An arm that moves the tool: readiness is the grasp point inside its workspace
         (:mod:`.arm`); None: the fixed tool's stability count."""
@@ -213,6 +227,19 @@ class TargetTracking:
                        text=f"candidate near north {place[0]:.1f} m east {place[1]:.1f} m "
                        f"rejected: {why}")
 
+    def _judge_kept(self, accepted: bool, camera: str) -> None:
+        """A kept box's measurement while tracking: :data:`KEPT_UNACCEPTED_LIMIT` in a row
+        the filter does not accept make the keepers let go (logged)."""
+        self.kept_unaccepted = 0 if accepted else self.kept_unaccepted + 1
+        if self.kept_unaccepted < KEPT_UNACCEPTED_LIMIT:
+            return
+        self.kept_unaccepted = 0
+        self.drops += 1
+        self.log.write("event", source="mission",
+                       text=f"the {camera} camera's kept box gave {KEPT_UNACCEPTED_LIMIT} "
+                       "estimates in a row the target filter did not accept: the keepers let "
+                       "it go and the detector looks again")
+
     # -- queries -------------------------------------------------------------------------------
     def plane_state(self, t_ns: int | None = None) -> PlaneState:
         return PlaneState(self.plane.offset_m, self.plane.std_m(t_ns))
@@ -221,14 +248,32 @@ class TargetTracking:
         filt = self.filter.state(t_ns)
         return None if filt is None else filt.position_ned_m
 
-    def arm_target_ned_m(self, t_ns: int) -> XYZ | None:
-        """What an arm aims at: the latest fine estimate while it is fresh (at most
-        :data:`ARM_FIX_MAX_AGE_S` old: the vehicle's position estimate drifts little since
-        that frame), else the filter's position (None: no target)."""
+    @property
+    def latest_fix(self) -> tuple[int, XYZ] | None:
+        """(frame stamp, position) of the latest fine estimate the filter accepted (with an arm
+        whose tool the camera sees, corrected relative to the tool: :mod:`.tool_sight`)."""
+        return max(self.fixes, key=lambda f: f[0]) if self.fixes else None
+
+    def fresh_fix_ned_m(self, t_ns: int, min_fixes: int = 1) -> XYZ | None:
+        """While the latest fine estimate the filter accepted is at most
+        :data:`ARM_FIX_MAX_AGE_S` old (the vehicle's position estimate drifts little since that
+        frame), the median, axis by axis, of those of the last :data:`FIX_WINDOW_S` (at least
+        ``min_fixes`` of them); None otherwise: the cameras have not measured the target just
+        now."""
         fix = self.latest_fix
-        if fix is not None and 0 <= (t_ns - fix[0]) * 1e-9 <= ARM_FIX_MAX_AGE_S:
-            return fix[1]
-        return self.target_ned_m(t_ns)
+        if fix is None or not 0 <= (t_ns - fix[0]) * 1e-9 <= ARM_FIX_MAX_AGE_S:
+            return None
+        since = fix[0] - int(FIX_WINDOW_S * 1e9)
+        recent = [p for t, p in self.fixes if t >= since]
+        if len(recent) < min_fixes:
+            return None
+        m = np.median(np.asarray(recent), axis=0)
+        return (float(m[0]), float(m[1]), float(m[2]))
+
+    def arm_target_ned_m(self, t_ns: int) -> XYZ | None:
+        """What an arm aims at: the fresh fix (:meth:`fresh_fix_ned_m`), else the filter's
+        position (None: no target)."""
+        return self.fresh_fix_ned_m(t_ns) or self.target_ned_m(t_ns)
 
     # -- measurements --------------------------------------------------------------------------
     def apply(self, meas: Measurement, pol: StatePolicy, vehicle_now: VehicleState,
@@ -237,8 +282,6 @@ class TargetTracking:
         the camera choice and the grasp check."""
         cam_id, frame, state = meas.camera_id, meas.frame, meas.state
         p, pp = self.p, self.perception_p
-        if meas.fit_hint is not None:
-            self.fit_hint = meas.fit_hint
         det = meas.detection
         self.log.write("detection", camera=cam_id, seq=frame.seq, frame_t_ns=frame.timestamp_ns,
                        n=meas.raw_detections, used=det is not None,
@@ -296,13 +339,21 @@ class TargetTracking:
             if accepted and meas.role == "fine" and meas.fine_measurement:
                 self.fine_estimates += 1
             if accepted and meas.role == "fine":
-                self.latest_fix = (frame.timestamp_ns, pos)
+                sight = None if self.arm is None else self.arm.sight
+                self.fixes.append((frame.timestamp_ns, pos if sight is None or state is None
+                                   else sight.corrected_ned_m(cam_id, state.attitude_q, pos)))
+            if accepted and meas.fit_hint is not None:
+                # the heading for the cut views to come, from a view of the target: a view
+                # the filter refused (another object, a tracker gone astray) teaches nothing
+                self.fit_hint = meas.fit_hint
             if (accepted and meas.fit_hint is not None and pol.camera_choice == "fine"
                     and not (self.arm is not None and state is not None and det is not None
                              and self.arm.hides(model, state, det.corners_px))):
                 self.check_shape(meas.fit_hint.yaw_deg, pos, cam_id,
                                  meas.fit_hint.silhouette_iou, meas.fit_hint.silhouette_yaw_deg)
             fresh = accepted
+        if pol.tracks and meas.kept and meas.role is not None:
+            self._judge_kept(fresh, cam_id)
         filt = self.filter.state(frame.timestamp_ns)
         switched = None
         if filt is not None and state is not None:

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from eaglemission.config import MissionFile
+from eaglemission.missions.approach_config import ApproachConfig
+from eaglemission.missions.log import MissionLog
+from eaglemission.missions.tracking import TargetTracking
+
+from eaglemission.config import MissionFile, load_config
 
 
 def variant(cfg: MissionFile, **sections: dict[str, Any]) -> MissionFile:
@@ -19,3 +23,16 @@ def variant(cfg: MissionFile, **sections: dict[str, Any]) -> MissionFile:
         else:
             data[name] = updates
     return MissionFile.model_validate(data)
+
+
+def target_tracking(**tracking: object) -> TargetTracking:
+    """The embedded mission's target tracking, with ``mission.params.tracking`` keys replaced."""
+    cfg = load_config(check_plugins=False)
+    if tracking:
+        params = dict(cfg.mission.params)
+        params["tracking"] = {**params.get("tracking", {}), **tracking}
+        cfg = variant(cfg, mission={"params": params})
+    p = ApproachConfig.of(cfg)
+    models = {cid: getattr(cfg.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
+    return TargetTracking(cfg, models, MissionLog(None, now_ns=lambda: 0), tracking=p.tracking,
+                          perception=p.perception, plane=p.plane, grasp=p.grasp)

@@ -217,8 +217,12 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
         # no known target (a real flight, a replay): the mission's own estimate is all there is
         h_err, dist = result.estimated_tool_errors_m
     closed = grasp_at_close(result, traj, cfg, target_position_ned_m, t0_ns=t0_ns)
-    within = (h_err is not None and dist is not None and h_err <= tolerances.grasp_horizontal_m
-              and abs(dist - grasp.distance_m) <= grasp.tolerance_m)
+    if arm_closed and "grasped" in closed:
+        within = bool(closed["grasped"])  # an arm: the tool it closed at, 3-D within 2.5 cm
+    else:
+        within = (h_err is not None and dist is not None
+                  and h_err <= tolerances.grasp_horizontal_m
+                  and abs(dist - grasp.distance_m) <= grasp.tolerance_m)
     violations = envelope_violations(traj, cfg, t0_ns, tolerances) if traj else []
     landed = bool(traj) and not getattr(traj[-1], "in_air", False)
     ended_safe = True
@@ -234,6 +238,9 @@ def evaluate(result: MissionResult, trajectory: Sequence[VehicleState], cfg: Mis
     elif t_gr is None:
         ended_safe = False
         explanation = f"ended in {result.final_state} without GRASP_READY: {result.reason}"
+    elif not within and arm_closed and "grasp_error_m" in closed:
+        explanation = (f"the gripper closed {closed['grasp_error_m'] * 100:.1f} cm from the "
+                       f"grasp point (true; grasped within {GRASPED_WITHIN_M * 100:g} cm)")
     elif not within:
         explanation = (f"GRASP_READY with true tool-point error {h_err:.3f} m horizontal, "
                        f"grasp distance {dist:.3f} m")

@@ -19,28 +19,13 @@ from eaglemission.missions.approach import (
 )
 from eaglemission.missions.approach_config import ApproachConfig
 from eaglemission.missions.guidance import Guidance, Plan
-from eaglemission.missions.log import MissionLog
-from eaglemission.missions.tracking import TargetTracking
-from mission_helpers import variant
+from mission_helpers import target_tracking, variant
 
 from eaglemission.config import MissionFile, load_config
 
 
-def _tracking(**tracking: object) -> TargetTracking:
-    """The embedded mission's target tracking, with ``mission.params.tracking`` keys replaced."""
-    cfg = load_config(check_plugins=False)
-    if tracking:
-        params = dict(cfg.mission.params)
-        params["tracking"] = {**params.get("tracking", {}), **tracking}
-        cfg = variant(cfg, mission={"params": params})
-    p = ApproachConfig.of(cfg)
-    models = {cid: getattr(cfg.cameras, cid).to_model(cid) for cid in ("wide", "narrow")}
-    return TargetTracking(cfg, models, MissionLog(None, now_ns=lambda: 0), tracking=p.tracking,
-                          perception=p.perception, plane=p.plane, grasp=p.grasp)
-
-
 def test_the_third_loss_near_one_place_rejects_it_and_only_it() -> None:
-    t = _tracking()
+    t = target_tracking()
     assert t.p.max_losses == 3
     assert t.count_loss() is None and not t.just_rejected  # never tracked: nothing to count
     t.last_target = (8.5, 0.7, -0.2)
@@ -59,12 +44,12 @@ def test_the_third_loss_near_one_place_rejects_it_and_only_it() -> None:
 
 
 def test_the_bound_is_configurable() -> None:
-    t = _tracking(max_losses=1)
+    t = target_tracking(max_losses=1)
     t.last_target = (1.0, 1.0, 0.0)
     t.count_loss()
     assert t.just_rejected and t.is_rejected((1.0, 1.0, 0.0))
     with pytest.raises(ValueError, match="max_losses"):
-        _tracking(max_losses=0)
+        target_tracking(max_losses=0)
 
 
 def test_a_rejected_candidate_resumes_the_search_or_takes_the_configured_action() -> None:
@@ -125,7 +110,7 @@ def test_a_distractor_lost_three_times_is_rejected_and_the_target_is_grasped(
 
 
 def test_a_candidate_whose_outline_is_not_the_targets_shape_is_rejected() -> None:
-    t = _tracking(shape={"min_iou": 0.9, "min_views": 4})
+    t = target_tracking(shape={"min_iou": 0.9, "min_views": 4})
     t.filter.update((37.8, -3.2, -0.2), 0.1, 1)
     t.last_target = (37.8, -3.2, -0.2)
     for iou in (0.81, 0.80, 0.97):  # 3 views: not judged yet
@@ -139,7 +124,7 @@ def test_a_candidate_whose_outline_is_not_the_targets_shape_is_rejected() -> Non
 
 
 def test_the_target_keeps_its_track_through_a_few_poor_outlines() -> None:
-    t = _tracking(shape={"min_iou": 0.9, "min_views": 4})
+    t = target_tracking(shape={"min_iou": 0.9, "min_views": 4})
     t.filter.update((22.0, 1.5, -0.2), 0.1, 1)
     for iou in (0.97, 0.6, 0.98, 0.96, 0.55, 0.99, 0.97):  # a merged blob now and then
         t.check_shape(20.0, (22.0, 1.5, -0.2), "wide", iou)
@@ -149,9 +134,9 @@ def test_the_target_keeps_its_track_through_a_few_poor_outlines() -> None:
 
 
 def test_the_silhouette_check_is_on_by_default_and_can_be_turned_off() -> None:
-    t = _tracking()
+    t = target_tracking()
     assert t.p.shape.min_iou == 0.86 and t.p.shape.min_views == 8
-    off = _tracking(shape={"min_iou": None, "min_views": 1})
+    off = target_tracking(shape={"min_iou": None, "min_views": 1})
     for _ in range(10):
         off.check_shape(0.0, (1.0, 1.0, 0.0), "narrow", 0.5)
     assert not off.misshapen

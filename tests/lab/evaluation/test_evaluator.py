@@ -100,5 +100,12 @@ def test_grasped_only_within_2_5_cm_of_the_tool_where_the_arm_held_it() -> None:
                   target, t0_ns=t0)
     assert not ev.grasped and math.isclose(ev.grasp_error_m, 0.03, abs_tol=1e-9)
     assert "not grasped" in "\n".join(ev.report_lines())
+    assert not ev.success and "closed 3.0 cm from the grasp point" in ev.explanation
+    # an arm succeeds on the tool it closed at, 3-D: 2 cm low is grasped (the grasp distance's
+    # 1 cm tolerance is the fixed tool's: its GRASP_READY pose)
+    low = (home[0] - 0.04, home[1], home[2] + 0.02)  # 2 cm under the grasp point
+    ev = evaluate(_Closed(tool_body_at_close_m=low, estimated_grasp_error_m=0.0), traj, cfg,
+                  target, t0_ns=t0)
+    assert ev.grasped and ev.success, ev.explanation
     ev = evaluate(_Closed(t_gripper_closed_s=None), traj, cfg, target, t0_ns=t0)
     assert not ev.gripper_closed and not ev.grasped and ev.grasp_error_m is None
