@@ -49,10 +49,6 @@ FIX_WINDOW_S = 0.6
 swings by centimetres from frame to frame; the target does not move)."""
 GRIPPER_MIN_FIXES = 3
 """The gripper's measured error needs this many fine estimates in the window."""
-KEPT_UNACCEPTED_LIMIT = 3
-"""While tracking, this many kept boxes in a row that give the filter nothing it accepts (an
-estimate outside its gate, a plane fit that refuses the box) make the keepers let go: their
-tracker follows something else, and the detector looks again."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,10 +100,8 @@ class TargetTracking:
         self.silhouettes: list[float] = []
         """Their silhouette IoUs (:func:`~eaglemission.estimators.top_plane.silhouette_iou`)."""
         self.drops = 0
-        """How often the mission dropped its target (lost, rejected) or its keepers' box:
-        perception's keepers let it go when this changes."""
-        self.kept_unaccepted = 0
-        """Kept boxes in a row that gave the filter nothing it accepted."""
+        """How often the mission dropped its target (lost, rejected): perception's keepers let
+        it go when this changes."""
         self.fixes: collections.deque[tuple[int, XYZ]] = collections.deque(maxlen=32)
         """(frame stamp, position) of the latest fine estimate the filter accepted (with an arm
         whose tool the camera sees, corrected relative to the tool: :mod:`.tool_sight`)."""
@@ -227,19 +221,6 @@ class TargetTracking:
                        text=f"candidate near north {place[0]:.1f} m east {place[1]:.1f} m "
                        f"rejected: {why}")
 
-    def _judge_kept(self, accepted: bool, camera: str) -> None:
-        """A kept box's measurement while tracking: :data:`KEPT_UNACCEPTED_LIMIT` in a row
-        the filter does not accept make the keepers let go (logged)."""
-        self.kept_unaccepted = 0 if accepted else self.kept_unaccepted + 1
-        if self.kept_unaccepted < KEPT_UNACCEPTED_LIMIT:
-            return
-        self.kept_unaccepted = 0
-        self.drops += 1
-        self.log.write("event", source="mission",
-                       text=f"the {camera} camera's kept box gave {KEPT_UNACCEPTED_LIMIT} "
-                       "estimates in a row the target filter did not accept: the keepers let "
-                       "it go and the detector looks again")
-
     # -- queries -------------------------------------------------------------------------------
     def plane_state(self, t_ns: int | None = None) -> PlaneState:
         return PlaneState(self.plane.offset_m, self.plane.std_m(t_ns))
@@ -352,8 +333,6 @@ class TargetTracking:
                 self.check_shape(meas.fit_hint.yaw_deg, pos, cam_id,
                                  meas.fit_hint.silhouette_iou, meas.fit_hint.silhouette_yaw_deg)
             fresh = accepted
-        if pol.tracks and meas.kept and meas.role is not None:
-            self._judge_kept(fresh, cam_id)
         filt = self.filter.state(frame.timestamp_ns)
         switched = None
         if filt is not None and state is not None:

@@ -1,8 +1,7 @@
 """What the final approach takes from a view depends on whether the target filter accepted it:
 the heading that constrains the cut views to come and the fix an arm's gripper waits for come
 only from accepted views (a tracker gone astray, another object: measured in the gusts
-campaign, where such a view's heading put every later cut view 10 cm off), and a keeper whose
-box gives nothing accepted is let go."""
+campaign, where such a view's heading put every later cut view 10 cm off)."""
 
 from __future__ import annotations
 
@@ -13,7 +12,6 @@ from eaglemission.missions.perception import FitHint, Measurement, Provenance
 from eaglemission.missions.tracking import (
     ARM_FIX_MAX_AGE_S,
     GRIPPER_MIN_FIXES,
-    KEPT_UNACCEPTED_LIMIT,
     TargetTracking,
 )
 from mission_helpers import target_tracking
@@ -75,17 +73,3 @@ def test_the_arm_aims_at_the_median_of_the_last_fixes_and_the_gripper_needs_thre
     aim = t.fresh_fix_ned_m(now)
     assert aim is not None and aim[0] == pytest.approx(TARGET[0], abs=1e-9)  # not the 4 cm swing
 
-
-def test_a_kept_box_the_filter_keeps_refusing_is_let_go() -> None:
-    t = target_tracking()
-    t.filter.update(TARGET, 0.01, 10**9)
-    far = (TARGET[0] + 0.8, TARGET[1], TARGET[2])  # the tracker follows something else
-    epoch = t.drops
-    for k in range(KEPT_UNACCEPTED_LIMIT - 1):
-        _view(t, 11 * 10**8 + k * 10**8, far, 27.0, kept=True)
-    _view(t, 14 * 10**8, TARGET, 27.0, kept=True)  # an accepted one starts the count again
-    for k in range(KEPT_UNACCEPTED_LIMIT - 1):
-        _view(t, 15 * 10**8 + k * 10**8, far, 27.0, kept=True)
-    assert t.drops == epoch
-    _view(t, 18 * 10**8, far, 27.0, kept=True)
-    assert t.drops == epoch + 1  # the keepers see a new epoch and let go
