@@ -45,8 +45,8 @@ class SimulatedArmConfig(BaseModel):
     drawn: bool = Field(True, description="the synthetic cameras draw the arm where it is "
                         "in view")
     marker: ToolMarker | None = Field(
-        default_factory=ToolMarker, description="the ArUco marker on the gripper's back face "
-        "(the cameras measure the tool by it: docs/manipulators.md); null: none")
+        None, description="an ArUco marker on the gripper's back face, e.g. {} for the "
+        "defaults (the cameras measure the tool by it: docs/manipulators.md); null: none")
 
     def model_post_init(self, _context: Any) -> None:
         ws = self.workspace

@@ -35,7 +35,6 @@ inputs give the same bytes.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import threading
 import zlib
@@ -52,6 +51,7 @@ from eaglemission.lab.cameras.imaging import (
     motion_blur,
     optical_axis_motion_px,
 )
+from eaglemission.lab.world.arm_drawing import draw_arm
 from eaglemission.lab.world.ground import (
     BGRA_LEVEL_BUDGET_BYTES,
     SKY_HORIZON_BGR,
@@ -83,8 +83,7 @@ from eaglemission.geometry import (
     R_to_euler,
     quat_to_R,
 )
-from eaglemission.geometry.tool_marker import ToolMarker, marker_axes_body, marker_corners_body
-from eaglemission.perception.tool_marker import marker_image
+from eaglemission.geometry.tool_marker import ToolMarker
 from eaglemission.types import XYZ, Points2
 
 __all__ = ["BGRA_LEVEL_BUDGET_BYTES", "DEFAULT_TARGET_BGR", "SKY_HORIZON_BGR", "SKY_ZENITH_BGR",
@@ -93,17 +92,6 @@ __all__ = ["BGRA_LEVEL_BUDGET_BYTES", "DEFAULT_TARGET_BGR", "SKY_HORIZON_BGR", "
 
 DEFAULT_TARGET_BGR = (30, 40, 210)
 SHADOW_FACTOR = 0.55  # ground brightness in a box's cast shadow (ambient light only)
-ARM_SLIDE_M = 0.06  # the visible end of the arm's Z slide above the gripper block
-ARM_ROD_M = 0.015  # the slide's square section
-ARM_BLOCK_M = 0.04  # the gripper block's side, centred on the tool point
-ARM_ROD_BGR = (45, 45, 45)
-ARM_BLOCK_BGR = (90, 90, 90)
-
-
-@functools.lru_cache(maxsize=4)
-def _marker_bitmap(marker: ToolMarker) -> NDArray[np.uint8]:
-    """The marker's black square, 96 px a side (warped onto its face in each frame)."""
-    return marker_image(marker, 96)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -362,10 +350,8 @@ class SyntheticWorld:
         self._render_sky(img, ctx.K_true, R_no)
         self._render_objects(img, ctx.K_true, R_on, C, int(timestamp_ns))
         if tool_body_m is not None:
-            self._render_arm(img, ctx.K_true, R_on, C, position_ned_m, attitude_q, tool_body_m)
-            if tool_marker is not None:
-                self._render_marker(img, ctx.K_true, R_on, C, position_ned_m, attitude_q,
-                                    tool_body_m, tool_marker)
+            draw_arm(self, img, ctx.K_true, R_on, C, position_ned_m, attitude_q, tool_body_m,
+                     tool_marker)
         sim = self.simulation
         blur = (0.0, 0.0)
         if sim.motion_blur and exposure_start_pose is not None:
@@ -441,72 +427,6 @@ class SyntheticWorld:
                     continue  # back face
                 colour = self.face_colour(obj.colour_bgr, n_ned)
                 self._fill_face(img, K, R_on, C, v_ned, colour, W, H)
-
-    def _render_arm(self, img: NDArray[np.uint8], K: NDArray[np.float64],
-                    R_on: NDArray[np.float64], C: NDArray[np.float64],
-                    position_ned_m: Sequence[float], attitude_q: Sequence[float],
-                    tool_body_m: Sequence[float]) -> None:
-        """A simulated arm's end in body FRD: the gripper block around the tool point and the
-        end of the Z slide above it (the arm's stage sits behind the cameras, out of view).
-        Nearer than anything on the ground, so drawn last, the slide first."""
-        H, W = img.shape[:2]
-        R_nb = quat_to_R(attitude_q)
-        p = np.asarray(position_ned_m, dtype=np.float64)
-        tx, ty, tz = (float(v) for v in tool_body_m)
-        parts = (((tx, ty, tz - ARM_BLOCK_M / 2 - ARM_SLIDE_M), ARM_ROD_M, ARM_SLIDE_M,
-                  ARM_ROD_BGR),
-                 ((tx, ty, tz - ARM_BLOCK_M / 2), ARM_BLOCK_M, ARM_BLOCK_M, ARM_BLOCK_BGR))
-        for top, side, height, colour in parts:
-            for verts, nrm in box_faces(side, side, height):
-                v_ned = (verts + np.asarray(top)) @ R_nb.T + p
-                n_ned = R_nb @ nrm
-                if float(n_ned @ (C - v_ned[0])) <= 0.0:
-                    continue
-                self._fill_face(img, K, R_on, C, v_ned, self.face_colour(colour, n_ned), W, H)
-
-    def _render_marker(self, img: NDArray[np.uint8], K: NDArray[np.float64],
-                       R_on: NDArray[np.float64], C: NDArray[np.float64],
-                       position_ned_m: Sequence[float], attitude_q: Sequence[float],
-                       tool_body_m: Sequence[float], marker: ToolMarker) -> None:
-        """The tool's marker on its white plate, lit like the face it lies on; only when the
-        face is turned to the camera and the whole marker is in front of it."""
-        H, W = img.shape[:2]
-        R_nb = quat_to_R(attitude_q)
-        p = np.asarray(position_ned_m, dtype=np.float64)
-        tool = (float(tool_body_m[0]), float(tool_body_m[1]), float(tool_body_m[2]))
-        n_ned = R_nb @ marker_axes_body(marker.facing)[:, 2]
-        square = marker_corners_body(marker, tool) @ R_nb.T + p
-        if float(n_ned @ (C - square[0])) <= 0.0:
-            return
-        if marker.plate_m > 0:
-            plate = marker_corners_body(marker, tool, marker.plate_m) @ R_nb.T + p
-            self._fill_face(img, K, R_on, C, plate, self.face_colour((235, 235, 235), n_ned),
-                            W, H)
-        cam = (square - C) @ R_on.T
-        if not (cam[:, 2] > NEAR_PLANE_M).all():
-            return
-        uv = cam @ K.T
-        uv = uv[:, :2] / uv[:, 2:3]
-        u0, v0 = np.floor(uv.min(axis=0)).astype(int)
-        u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 1
-        if u1 <= 0 or v1 <= 0 or u0 >= W or v0 >= H or u1 - u0 > 2 * W or v1 - v0 > 2 * H:
-            return
-        a0, b0, a1, b1 = max(u0, 0), max(v0, 0), min(u1, W), min(v1, H)
-        bitmap = _marker_bitmap(marker)
-        n = float(bitmap.shape[0])
-        src = np.array([[0, 0], [n, 0], [n, n], [0, n]], dtype=np.float32) - np.float32(0.5)
-        dst = (uv - (a0, b0)).astype(np.float32)
-        Hm = cv2.getPerspectiveTransform(src, dst)
-        size = (a1 - a0, b1 - b0)
-        shade = self.shade(n_ned)
-        face = cv2.warpPerspective(bitmap, Hm, size, flags=cv2.INTER_AREA,
-                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        inside = cv2.warpPerspective(np.full_like(bitmap, 255), Hm, size, flags=cv2.INTER_AREA,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        roi = img[b0:b1, a0:a1].astype(np.float32)
-        alpha = (inside.astype(np.float32) / 255.0)[..., None]
-        lit = (face.astype(np.float32) * min(1.0, 235 / 255 * shade))[..., None]
-        img[b0:b1, a0:a1] = np.clip(roi * (1 - alpha) + lit * alpha, 0, 255).astype(np.uint8)
 
     def shadow_polygon_ned(self, obj_faces: Sequence[tuple[NDArray[np.float64],
                                                            NDArray[np.float64]]],
