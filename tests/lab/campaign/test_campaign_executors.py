@@ -174,11 +174,17 @@ def test_a_stopped_campaign_keeps_its_runs_and_leaves_no_worker(
     import signal
     import time
 
+    def as_in_a_terminal() -> None:
+        # a terminal's foreground job takes Ctrl-C; a job started in the background of a
+        # script (and all it starts) ignores SIGINT, so Python would not turn it into
+        # KeyboardInterrupt and the campaign would run to its end
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "eaglemission.cli", "campaign", str(small_yaml),
                              "--runs", "12", "--workers", "2", "--seed", str(SEED),
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=as_in_a_terminal)
     try:
         deadline = time.monotonic() + 240
         while not list(out.glob("run_*.result.json")):
