@@ -192,6 +192,8 @@ class TargetEstimate:
     yaw_deg: float | None = None
     std_m: float = 0.5
     pose: PoseEstimate | None = None
+    fit_cost: float | None = None
+    """The plane fit's mismatch when the position is its fit (:class:`PlaneFit`'s ``cost``)."""
 
     def __bool__(self) -> bool:
         return True

@@ -31,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.geometry import CameraModel, Pose, ray_plane_points
 from eaglemission.interfaces.estimator import CameraView
+from eaglemission.kernels import lazy_kernel
 from eaglemission.types import Detection, PlaneFit
 
 if TYPE_CHECKING:
@@ -55,7 +56,13 @@ def box_points_ned(top_ned_m: Sequence[float] | NDArray[np.float64], yaw_deg: fl
 def mbr(points_px: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Centre, sorted side lengths and the long side's direction (deg, modulo 180) of the
     minimum-area rectangle of image points."""
-    (cx, cy), (w, h), ang = cv2.minAreaRect(np.asarray(points_px, dtype=np.float32))
+    return rect_fields(cv2.minAreaRect(np.asarray(points_px, dtype=np.float32)))
+
+
+def rect_fields(rect: cv2.typing.RotatedRect
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """An OpenCV rotated rectangle as :func:`mbr` gives it."""
+    (cx, cy), (w, h), ang = rect
     long_deg = float(ang if w >= h else ang + 90.0) % 180.0
     return np.array([cx, cy]), np.sort(np.array([w, h], dtype=np.float64)), long_deg
 
@@ -82,15 +89,74 @@ def _image_rect(width_px: int, height_px: int) -> NDArray[np.float32]:
                      [0, height_px - 1]], dtype=np.float32)
 
 
-def _clipped_mbr(points_px: NDArray[np.float32], image_rect: NDArray[np.float32]
+def _clipped_mbr(points_px: NDArray[np.float32], image_rect: NDArray[np.float32],
+                 occluder_px: NDArray[np.float32] | None = None
                  ) -> cv2.typing.RotatedRect | None:
     """``cv2.minAreaRect`` of ``clip_to_image(points_px)`` (float32 points; None when the
-    clipped region is empty), as :func:`mbr` computes it."""
+    clipped region is empty), as :func:`mbr` computes it; with ``occluder_px``, of what the
+    occluder leaves of it (:func:`visible_mbr`)."""
     hull = cv2.convexHull(points_px)
     area, poly = cv2.intersectConvexConvex(hull, image_rect)
     if poly is None or area <= 1.0:
         return None
+    if occluder_px is not None:
+        return visible_mbr(np.asarray(poly, dtype=np.float32).reshape(-1, 2), occluder_px)
     return cv2.minAreaRect(poly)
+
+
+_visible_kernel = lazy_kernel("eaglemission.estimators._occlusion_kernel", "visible_points")
+
+
+def _edge_crossings(a_px: NDArray[np.float64], b_px: NDArray[np.float64]
+                    ) -> NDArray[np.float64]:
+    """(k, 2) points where an edge of closed polygon ``a`` crosses an edge of ``b``."""
+    p, r = a_px, np.concatenate((a_px[1:], a_px[:1])) - a_px  # edges p + t r, t in [0, 1]
+    q, s = b_px, np.concatenate((b_px[1:], b_px[:1])) - b_px
+    qx = q[None, :, 0] - p[:, None, 0]  # (n, m)
+    qy = q[None, :, 1] - p[:, None, 1]
+    rxs = np.outer(r[:, 0], s[:, 1]) - np.outer(r[:, 1], s[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (qx * s[:, 1] - qy * s[:, 0]) / rxs
+        u = (qx * r[:, 1:2] - qy * r[:, 0:1]) / rxs
+    hit = (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)  # parallel edges: t, u not finite
+    i = np.nonzero(hit)[0]
+    crossings: NDArray[np.float64] = p[i] + t[hit][:, None] * r[i]
+    return crossings
+
+
+def visible_mbr(region_px: NDArray[np.float32], occluder_px: NDArray[np.float32]
+                ) -> cv2.typing.RotatedRect | None:
+    """``cv2.minAreaRect`` of the part of a convex region (float32 (n, 2)) that a convex
+    occluder nearer the camera leaves visible (the arm's tool over the target: a detector's
+    region stops at the tool, not at the target's hidden edge); None when nothing is left.
+
+    The part left is not convex, but its rectangle is its convex hull's, and the hull's corners
+    are the region's corners outside the occluder and the points where the two outlines cross
+    (the occluder's own corners make dents, never hull corners)."""
+    region = np.asarray(region_px, dtype=np.float64).reshape(-1, 2)
+    occ = np.asarray(occluder_px, dtype=np.float64).reshape(-1, 2)
+    if ((region.max(axis=0) <= occ.min(axis=0)).any()
+            or (occ.max(axis=0) <= region.min(axis=0)).any()):
+        return cv2.minAreaRect(region.astype(np.float32))  # apart
+    kernel = _visible_kernel()
+    pts = (visible_points_numpy(region, occ) if kernel is None
+           else kernel(region, occ)).astype(np.float32)
+    if len(pts) < 3 or cv2.contourArea(cv2.convexHull(pts)) <= 1.0:
+        return None
+    return cv2.minAreaRect(pts)
+
+
+def visible_points_numpy(region: NDArray[np.float64], occ: NDArray[np.float64]
+                         ) -> NDArray[np.float64]:
+    """The corners :func:`visible_mbr` measures (the compiled kernel's reference): the
+    region's corners not strictly inside the convex occluder (on the same side of all its
+    edges) and the points where the outlines cross."""
+    edge = np.concatenate((occ[1:], occ[:1])) - occ
+    rel = region[:, None, :] - occ[None, :, :]
+    cross = edge[None, :, 0] * rel[..., 1] - edge[None, :, 1] * rel[..., 0]
+    inside = (cross > 0).all(axis=1) | (cross < 0).all(axis=1)
+    pts: NDArray[np.float64] = np.vstack([region[~inside], _edge_crossings(region, occ)])
+    return pts
 
 
 def clip_to_image(points_px: ArrayLike, width_px: int, height_px: int
@@ -143,7 +209,8 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
                      corners_px: ArrayLike, target: TargetConfig, *, ground_down_m: float = 0.0,
                      yaw_step_deg: float = 15.0, iterations: int = 3,
                      yaw_hint_deg: float | None = None,
-                     region_hint: str | None = None) -> PlaneFit | None:
+                     region_hint: str | None = None,
+                     occluder_px: ArrayLike | None = None) -> PlaneFit | None:
     """Top-face centre of the target whose top face or box silhouette best explains a
     detection (see the module docstring); None when the ray misses the plane or the model
     does not project in front of the camera.
@@ -152,6 +219,8 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
     image border (the final metres of the approach) still fits; ``yaw_hint_deg`` /
     ``region_hint`` (from earlier, complete views) restrict the headings to +-``yaw_step_deg``
     (7 headings) and the region model, since a cut view constrains them poorly.
+    ``occluder_px`` (a convex polygon: the arm's tool, nearer than the target) is removed from
+    each projected model as from the detection it hides (:func:`visible_mbr`).
 
     All (heading, region) hypotheses are iterated together: projections and ray-plane
     intersections are batched, only the clipping and the MBR (OpenCV) run per hypothesis.
@@ -186,6 +255,7 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
     alive = np.ones(n, dtype=bool)
     pts = np.empty((n, 9, 3))
     image_rect = _image_rect(model.width_px, model.height_px)
+    occ = None if occluder_px is None else np.asarray(occluder_px, np.float32).reshape(-1, 2)
     for _ in range(iterations):
         idx = np.flatnonzero(alive)
         if len(idx) == 0:
@@ -205,7 +275,7 @@ def fit_on_top_plane(model: CameraModel, cam_ned: Pose, center_px: ArrayLike,
         px32 = px.astype(np.float32)  # what OpenCV sees (clip_to_image, mbr)
         c_model = np.zeros((k, 2))
         for j, h in enumerate(idx):
-            rect = _clipped_mbr(px32[j, :n_pts[h]], image_rect) if fin[j] else None
+            rect = _clipped_mbr(px32[j, :n_pts[h]], image_rect, occ) if fin[j] else None
             if rect is None:
                 alive[h] = False
                 continue
@@ -236,7 +306,8 @@ def fit_on_top_plane_reference(model: CameraModel, cam_ned: Pose, center_px: Arr
                                ground_down_m: float = 0.0, yaw_step_deg: float = 15.0,
                                iterations: int = 3,
                                yaw_hint_deg: float | None = None,
-                               region_hint: str | None = None) -> PlaneFit | None:
+                               region_hint: str | None = None,
+                               occluder_px: ArrayLike | None = None) -> PlaneFit | None:
     """The straightforward implementation of :func:`fit_on_top_plane` (one hypothesis at a
     time), kept as the reference its tests compare the batched path against."""
     plane = ground_down_m - float(target.height_m)
@@ -268,7 +339,15 @@ def fit_on_top_plane_reference(model: CameraModel, cam_ned: Pose, center_px: Arr
                 if seen is None:
                     dims = None
                     break
-                c_model, dims, long_model = mbr(seen)
+                if occluder_px is None:
+                    c_model, dims, long_model = mbr(seen)
+                else:
+                    rect = visible_mbr(seen.astype(np.float32),
+                                       np.asarray(occluder_px, np.float32))
+                    if rect is None:
+                        dims = None
+                        break
+                    c_model, dims, long_model = rect_fields(rect)
                 # shift the ray by the model's MBR-centre offset from the top-face centre
                 pix = c_det - (c_model - px[-1])
                 q = plane_hit(cam_ned, model, pix, plane)
@@ -426,7 +505,8 @@ class TopPlaneFitter:
     def fit(self, detection: Detection, view: CameraView, *, plane_down_m: float,
             yaw_hint_deg: float | None = None, region_hint: str | None = None,
             iterations: int = 4, silhouette: bool = False,
-            yaw_hint_span_deg: float | None = None) -> PlaneFit | None:
+            yaw_hint_span_deg: float | None = None,
+            occluder_px: ArrayLike | None = None) -> PlaneFit | None:
         if region_hint is not None and region_hint not in REGIONS:
             raise ValueError(f"region_hint: must be one of {REGIONS}, got {region_hint!r}")
         fit = fit_on_top_plane(view.model, view.camera_pose_ned, detection.center_px,
@@ -435,7 +515,8 @@ class TopPlaneFitter:
                                              if yaw_hint_deg is None or yaw_hint_span_deg is None
                                              else yaw_hint_span_deg),
                                iterations=iterations,
-                               yaw_hint_deg=yaw_hint_deg, region_hint=region_hint)
+                               yaw_hint_deg=yaw_hint_deg, region_hint=region_hint,
+                               occluder_px=occluder_px)
         if fit is None or not silhouette or detection.hull_px is None \
                 or yaw_hint_deg is not None:
             return fit  # a cut view (hinted) shows only part of the outline

@@ -10,6 +10,8 @@ vehicle's pose the telemetry, the tool's position the arm's own read-back. The g
 * :meth:`ArmTracking.run` commands the tool to the grasp point whenever it is woken (every
   processed frame and every setpoint tick) while tracking is on;
 * :meth:`ArmTracking.error_m`: the measured tool-to-target error the gripper waits for;
+* :meth:`ArmTracking.footprint_px`: where the tool covers a camera's view (the plane fit
+  leaves it out of its models, as the detector's region leaves it out);
 * :meth:`ArmTracking.hides`: the tool covers a view of the target (the shape check skips it);
 * ``sight``: with a marker on the tool, the cameras' correction of their target estimates
   relative to the tool (:mod:`.tool_sight`).
@@ -28,13 +30,15 @@ from eaglemission.missions.log import MissionLog
 from eaglemission.missions.tool_sight import ToolSight
 
 from eaglemission import errors
-from eaglemission.geometry import CameraModel, camera_pose_ned, quat_to_R
+from eaglemission.geometry import CameraModel, quat_to_R
 from eaglemission.geometry.workspace import Workspace, offset_from_home
 from eaglemission.interfaces import Manipulator
+from eaglemission.perception.tool_marker import tool_footprint_px
 from eaglemission.types import XYZ, VehicleState
 
 TOOL_RADIUS_M = 0.04
-"""How far around its point an arm's tool (gripper and the slide above it) can cover the view."""
+"""How far around its point an arm's tool (gripper and the slide above it) can cover the view,
+unless the manipulator says (its optional ``tool_radius_m``)."""
 SETTLED_M = 0.002
 """The arm has settled when its read-back is this close to the point last commanded."""
 
@@ -87,6 +91,8 @@ class ArmTracking:
         self._failed = ""
         self._goal_body: XYZ | None = None
         marker = None if arm is None or not self.enabled else getattr(arm, "marker", None)
+        self.marker = marker
+        self.tool_radius_m = float(getattr(arm, "tool_radius_m", TOOL_RADIUS_M))
         self.sight = None if marker is None else ToolSight(marker, log)
         """The cameras' sightings of the tool's marker (None: the tool carries none)."""
 
@@ -134,25 +140,32 @@ class ArmTracking:
         off = offset_from_home(self.goal_body(vs, target_ned_m), self.arm.home_m)
         return self.workspace.offset_inside(off, self.workspace.margin_m)
 
-    def hides(self, model: CameraModel, vs: VehicleState, corners_px: npt.ArrayLike
-              ) -> bool:
-        """The arm's tool, seen by ``model`` from the pose ``vs``, overlaps a detection's
-        corners (grown by :data:`TOOL_RADIUS_M` at the tool's range): that view of the target
-        is partly the arm's (its outline is not the target's shape)."""
-        tool = np.asarray(self.arm.report().tool_body_m, dtype=np.float64)
-        if not np.isfinite(tool).all():
+    def footprint_px(self, model: CameraModel, radius_m: float | None = None
+                     ) -> npt.NDArray[np.float32] | None:
+        """The convex image polygon where the tool covers ``model``'s view: a cube of
+        ``radius_m`` (default ``tool_radius_m``) around it and its marker's plate; None: not in
+        view, or no read-back. The tool is where the camera sees it: the read-back less the
+        camera's marker correction (its calibration error at the tool) when it has one."""
+        tool = self.arm.report().tool_body_m
+        if not all(math.isfinite(v) for v in tool):
+            return None
+        c = None if self.sight is None else self.sight.correction_m(model.camera_id)
+        if c is not None:
+            tool = (tool[0] - c[0], tool[1] - c[1], tool[2] - c[2])
+        r = self.tool_radius_m if radius_m is None else radius_m
+        return tool_footprint_px(model, tool, r, self.marker)
+
+    def hides(self, model: CameraModel, corners_px: npt.ArrayLike) -> bool:
+        """The tool's footprint, at least :data:`TOOL_RADIUS_M` around the tool (the slide
+        above the gripper too), overlaps the rectangle around a detection's corners: that view
+        of the target is partly the arm's (its outline is not the target's shape)."""
+        foot = self.footprint_px(model, max(self.tool_radius_m, TOOL_RADIUS_M))
+        if foot is None:
             return False
-        p = np.asarray(vs.position_ned_m, dtype=np.float64) + quat_to_R(vs.attitude_q) @ tool
-        pose = camera_pose_ned(model, vs.position_ned_m, vs.attitude_q).inverse()
-        cam = pose.apply(p)
-        depth = float(np.ravel(cam)[2])
-        if not depth > 0:
-            return False
-        u, v = (float(x) for x in model.project(cam)[0])
-        grow = TOOL_RADIUS_M * float(model.K[0, 0]) / depth
         c = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
-        return bool(c[:, 0].min() - grow <= u <= c[:, 0].max() + grow
-                    and c[:, 1].min() - grow <= v <= c[:, 1].max() + grow)
+        lo, hi = foot.min(axis=0), foot.max(axis=0)
+        return bool(lo[0] <= c[:, 0].max() and c[:, 0].min() <= hi[0]
+                    and lo[1] <= c[:, 1].max() and c[:, 1].min() <= hi[1])
 
     def error_m(self, vs: VehicleState, target_ned_m: XYZ) -> float | None:
         """Measured distance from the tool (its read-back) to the grasp point; None when the

@@ -133,6 +133,9 @@ class Request:
     """Changes when the mission drops its target (lost, rejected): the keeper lets it go."""
     candidate_box: tuple[float, float, float, float] | None = None
     """While searching, the keeper's candidate awaiting confirmation (followed first)."""
+    occluder_px: NDArray[np.float32] | None = None
+    """Where the arm's tool covers this camera's view (a convex polygon; None: nowhere): the
+    plane fit leaves it out of its models."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -530,7 +533,8 @@ class Perception:
         fit = fitter.fit(det if outline is None else replace(det, hull_px=outline), view,
                          plane_down_m=plane_ground, yaw_hint_deg=yaw_hint,
                          region_hint=region_hint, iterations=8 if cut else 4,
-                         silhouette=outline is not None, yaw_hint_span_deg=yaw_span)
+                         silhouette=outline is not None, yaw_hint_span_deg=yaw_span,
+                         occluder_px=req.occluder_px)
         new_hint = None
         if fit is not None and not cut and fit.cost <= p.plane_fit_max_cost and req.close_range:
             # the heading for the cut views to come: the outline's when it fits the target
@@ -565,5 +569,5 @@ class Perception:
         dc = cam.R.T @ d
         refined = replace(est, position_ned_m=(float(pos[0]), float(pos[1]), float(pos[2])),
                           position_cam_m=(float(dc[0]), float(dc[1]), float(dc[2])),
-                          std_m=std, source=source)
+                          std_m=std, source=source, fit_cost=fit.cost)
         return refined, prov, True, None, new_hint

@@ -46,7 +46,9 @@ class Manipulator(Protocol):
     workspace: Workspace | None
     """Where the tool can go around ``home_m``; None: it cannot move (``fixed``)."""
     # optional: ``marker`` (a :class:`~eaglemission.geometry.tool_marker.ToolMarker` or None),
-    # a fiducial on the tool the cameras measure it by (missions/tool_sight.py)
+    # a fiducial on the tool the cameras measure it by (missions/tool_sight.py);
+    # ``tool_radius_m``, half the side of a cube around the tool point that holds what the
+    # cameras see of the gripper (missions/arm.py, 0.04 m without it)
 
     async def start(self, *, timeout_s: float) -> None:
         """Ready the tool (connect, home it); bounded."""

@@ -37,14 +37,47 @@ def marker_image(marker: ToolMarker, side_px: int) -> npt.NDArray[np.uint8]:
     return out
 
 
+def body_points_cam(model: CameraModel, points_body_m: npt.ArrayLike
+                    ) -> npt.NDArray[np.float64]:
+    """(n, 3) points fixed to the body (FRD) in the camera's optical frame, through its
+    believed mount (the vehicle's pose does not enter: both are on the body)."""
+    mount = model.mount
+    pts = np.asarray(points_body_m, dtype=np.float64).reshape(-1, 3)
+    cam: npt.NDArray[np.float64] = (pts - np.asarray(mount.lever_arm_m)) @ mount.R_body_optical
+    return cam
+
+
+def tool_footprint_px(model: CameraModel, tool_body_m: XYZ, radius_m: float,
+                      marker: ToolMarker | None = None, min_depth_m: float = 0.02
+                      ) -> npt.NDArray[np.float32] | None:
+    """The convex image polygon (float32 (n, 2)) covering the tool as the camera sees it: a
+    cube of half-side ``radius_m`` around the tool point and, with a marker, its plate (or the
+    marker's square without one); None when part of it is not in front of the camera or none
+    of it is inside the image."""
+    c = np.asarray(tool_body_m, dtype=np.float64)
+    r = float(radius_m)
+    pts = [c + (sx * r, sy * r, sz * r) for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+    if marker is not None:
+        pts.extend(marker_corners_body(marker, tool_body_m, marker.plate_m or None))
+    cam = body_points_cam(model, pts)
+    if not (cam[:, 2] > min_depth_m).all():
+        return None
+    px = model.project(cam)
+    if not np.isfinite(px).all():
+        return None
+    lo, hi = px.min(axis=0), px.max(axis=0)
+    if hi[0] < 0 or hi[1] < 0 or lo[0] >= model.width_px or lo[1] >= model.height_px:
+        return None
+    hull = cv2.convexHull(px.astype(np.float32))
+    return np.asarray(hull, dtype=np.float32).reshape(-1, 2)
+
+
 def predicted_box_px(marker: ToolMarker, model: CameraModel, tool_body_m: XYZ,
                      grow: float = 1.0) -> Box | None:
     """The pixel window where the marker should be with the tool at ``tool_body_m`` (the
     camera's believed mount), grown by ``grow`` times its size on each side; None when it is
     not wholly in front of the camera and inside the image."""
-    corners = marker_corners_body(marker, tool_body_m)
-    mount = model.mount
-    cam = (corners - np.asarray(mount.lever_arm_m)) @ mount.R_body_optical
+    cam = body_points_cam(model, marker_corners_body(marker, tool_body_m))
     if not (cam[:, 2] > 0).all():
         return None
     px = model.project(cam)

@@ -16,6 +16,7 @@ import collections
 import threading
 from typing import Annotated, Any
 
+from eaglemission.lab.world.arm_drawing import ARM_BLOCK_M
 from pydantic import BaseModel, ConfigDict, Field
 
 from eaglemission.clock import Clock
@@ -44,6 +45,10 @@ class SimulatedArmConfig(BaseModel):
         0.3, description="from the close command to the gripper closed")
     drawn: bool = Field(True, description="the synthetic cameras draw the arm where it is "
                         "in view")
+    tool_radius_m: Annotated[float, Field(gt=0, le=0.3)] = Field(
+        ARM_BLOCK_M / 2, description="half the side of a cube around the tool point that "
+        "holds the gripper as the cameras see it (the target's fit leaves out what it hides); "
+        "the drawn gripper block's by default")
     marker: ToolMarker | None = Field(
         None, description="an ArUco marker on the gripper's back face, e.g. {} for the "
         "defaults (the cameras measure the tool by it: docs/manipulators.md); null: none")
@@ -75,6 +80,7 @@ class SimulatedArm:
                             float(tool_point_m[2]))
         self.workspace: Workspace | None = self.config.workspace
         self.marker: ToolMarker | None = self.config.marker
+        self.tool_radius_m = self.config.tool_radius_m
         self._lock = threading.Lock()
         self._t_ns: int | None = None
         self._joints: list[float] = [0.0, 0.0, 0.0]

@@ -11,6 +11,7 @@ from eaglemission.missions.approach import POLICIES, S
 from eaglemission.missions.perception import FitHint, Measurement, Provenance
 from eaglemission.missions.tracking import (
     ARM_FIX_MAX_AGE_S,
+    ARM_FIX_MAX_FIT_COST,
     GRIPPER_MIN_FIXES,
     TargetTracking,
 )
@@ -24,14 +25,14 @@ VEHICLE = (19.55, 1.0, -0.67)
 
 
 def _view(t: TargetTracking, t_ns: int, position_ned_m: XYZ, yaw_deg: float, *,
-          kept: bool = False) -> None:
+          kept: bool = False, fit_cost: float | None = 0.02) -> None:
     """One complete close view of the narrow camera in FINE_DESCENT: a plane fit at
     ``position_ned_m`` whose outline gives the heading ``yaw_deg``."""
     vs = VehicleState(t_ns, VEHICLE, (0.0, 0.0, 0.0), euler_to_quat(0, 0, 0), in_air=True,
                       armed=True)
     frame = Frame(np.zeros((4, 4, 3), np.uint8), t_ns, "narrow", t_ns // 10**8)
     est = TargetEstimate(position_ned_m, (0.0, 0.0, 0.5), t_ns, "narrow", "rpnp+fit:box",
-                         std_m=0.02)
+                         std_m=0.02, fit_cost=fit_cost)
     hint = FitHint(yaw_deg, "box", 0.95, yaw_deg, 3.0)
     meas = Measurement("narrow", frame, vs, "fine", None, 1, False, est, Provenance.FINE,
                        True, None, hint, 1.0, kept=kept)
@@ -73,3 +74,16 @@ def test_the_arm_aims_at_the_median_of_the_last_fixes_and_the_gripper_needs_thre
     aim = t.fresh_fix_ned_m(now)
     assert aim is not None and aim[0] == pytest.approx(TARGET[0], abs=1e-9)  # not the 4 cm swing
 
+
+
+def test_a_fit_that_explains_its_detection_poorly_feeds_the_filter_not_the_arm() -> None:
+    t = target_tracking()
+    t.filter.update(TARGET, 0.01, 10**9)
+    near = (TARGET[0] + 0.005, TARGET[1], TARGET[2])
+    _view(t, 11 * 10**8, near, 27.0, fit_cost=ARM_FIX_MAX_FIT_COST + 0.1)
+    assert t.latest_fix is None
+    assert t.filter.state(11 * 10**8) is not None
+    _view(t, 12 * 10**8, near, 27.0, fit_cost=ARM_FIX_MAX_FIT_COST - 0.1)
+    assert t.latest_fix is not None and t.latest_fix[1] == near
+    _view(t, 13 * 10**8, near, 27.0, fit_cost=None)  # not a plane fit (fitter off)
+    assert t.latest_fix[0] == 13 * 10**8

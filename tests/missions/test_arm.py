@@ -138,6 +138,6 @@ def test_a_view_the_tool_covers_is_the_arms_not_the_targets() -> None:
     tool_px = project_target(model, at, (TARGET[0], TARGET[1], TARGET[2] - 0.175))
     u, v = float(tool_px[0]), float(tool_px[1])
     around = [(u - 40, v - 10), (u + 40, v - 10), (u + 40, v + 200), (u - 40, v + 200)]
-    assert t.hides(model, at, around)
+    assert t.hides(model, around)
     aside = [(u + 300, v), (u + 400, v), (u + 400, v + 100), (u + 300, v + 100)]
-    assert not t.hides(model, at, aside)
+    assert not t.hides(model, aside)

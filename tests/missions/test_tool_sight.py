@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from eaglemission.lab.world.render import SyntheticWorld
@@ -20,6 +21,7 @@ from eaglemission.perception.tool_marker import (
     marker_centre_cam,
     predicted_box_px,
     tool_body_from_marker,
+    tool_footprint_px,
 )
 from eaglemission.types import XYZ, Frame
 
@@ -101,3 +103,24 @@ def test_the_read_back_is_interpolated_at_the_frame_time() -> None:
     sight.record(T_NS + 10**8, (0.5, 0.1, 0.3))
     assert sight.readback_at(T_NS + 5 * 10**7) == pytest.approx((0.45, 0.05, 0.3))
     assert sight.readback_at(T_NS + 2 * 10**8) is None  # newer than the read-back: unknown
+
+
+@pytest.mark.parametrize("tool", [(0.50, -0.04, 0.38), (0.45, 0.0, 0.35), (0.40, 0.08, 0.30)])
+def test_the_tools_footprint_covers_the_arm_the_camera_sees(tool: XYZ) -> None:
+    """What the plane fit leaves out (missions/arm.py): the cube around the tool point and the
+    marker's plate hold the drawn gripper and plate (all but the top of the slide above)."""
+    world, model = _world()
+    with_arm, _ = world.render(model, *POSE, T_NS, tool_body_m=tool, tool_marker=ToolMarker())
+    without, _ = world.render(model, *POSE, T_NS)
+    drawn = np.argwhere(np.abs(with_arm.astype(int) - without.astype(int)).max(axis=2) > 0)
+    foot = tool_footprint_px(model, tool, 0.04, ToolMarker())
+    assert foot is not None and len(drawn) > 1000
+    inside = [cv2.pointPolygonTest(foot, (float(u), float(v)), False) >= 0 for v, u in drawn]
+    assert np.mean(inside) > 0.85
+    assert cv2.contourArea(foot) < 4 * len(drawn)
+
+
+def test_a_tool_behind_the_camera_has_no_footprint() -> None:
+    _, model = _world()
+    behind = tuple(np.asarray(model.mount.lever_arm_m) - 0.05 * model.mount.R_body_optical[:, 2])
+    assert tool_footprint_px(model, behind, 0.04) is None

@@ -83,6 +83,9 @@ class ServoArmConfig(BaseModel):
         None, description="actuator-set index of a servo gripper (+1 closed); null: the "
         "autopilot's gripper (DO_GRIPPER, the vehicle's grab)")
     gripper_output: _Output | None = None
+    tool_radius_m: Annotated[float, Field(gt=0, le=0.3)] = Field(
+        0.04, description="half the side of a cube around the tool point that holds the "
+        "gripper as the cameras see it (the target's fit leaves out what it hides)")
     marker: ToolMarker | None = Field(
         None, description="an ArUco marker fixed to the gripper, where it is: the cameras "
         "measure the tool by it (docs/manipulators.md); null: none")
@@ -123,6 +126,7 @@ class ServoArm:
                             float(tool_point_m[2]))
         self.workspace: Workspace | None = self.config.workspace
         self.marker: ToolMarker | None = self.config.marker
+        self.tool_radius_m = self.config.tool_radius_m
         self._sent: list[float | None] = [None, None, None]
         self._goal: XYZ = (0.0, 0.0, 0.0)
         self._sender: asyncio.Task[None] | None = None
