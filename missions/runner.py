@@ -289,11 +289,10 @@ class MissionRunner:
             predicted = (float(px[0]), float(px[1]))
         serves = {"coarse": CAMERA_WIDE, "fine": self.track.choice.fine_camera}  # which camera
         role = pol.estimator if pol.estimator and serves[pol.estimator] == cam_id else None
-        occluder = (self.arm.footprint_px(model) if self.arm.enabled and pol.close_range
-                    else None)
+        foot = self.arm.footprint_px(model) if self.arm.enabled and pol.close_range else None
         return Request(frame, model, state, role, predicted, pol.close_range, self.track.fit_hint,
                        self.track.plane_state(frame.timestamp_ns), self.track.drops,
-                       occluder_px=occluder)
+                       occluder_px=foot)
 
     def _apply(self, meas: Measurement, wall: float) -> None:
         """One processed frame, on the loop thread (:meth:`TargetTracking.apply`)."""
