@@ -23,6 +23,7 @@ import asyncio
 import math
 from collections.abc import Callable, Sequence
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 from eaglemission.missions.approach_config import ApproachConfig
@@ -166,6 +167,16 @@ class ArmTracking:
         lo, hi = foot.min(axis=0), foot.max(axis=0)
         return bool(lo[0] <= c[:, 0].max() and c[:, 0].min() <= hi[0]
                     and lo[1] <= c[:, 1].max() and c[:, 1].min() <= hi[1])
+
+    def covers(self, model: CameraModel, point_px: npt.ArrayLike) -> bool:
+        """The tool's footprint, at least :data:`TOOL_RADIUS_M` around the tool, covers the
+        image point ``point_px``: what lies there beyond the tool is out of ``model``'s sight."""
+        p = np.asarray(point_px, dtype=np.float64).reshape(-1)
+        foot = self.footprint_px(model, max(self.tool_radius_m, TOOL_RADIUS_M))
+        if foot is None or not np.isfinite(p).all():
+            return False
+        return bool(cv2.pointPolygonTest(foot.reshape(-1, 1, 2).astype(np.float32),
+                                         (float(p[0]), float(p[1])), False) >= 0)
 
     def error_m(self, vs: VehicleState, target_ned_m: XYZ) -> float | None:
         """Measured distance from the tool (its read-back) to the grasp point; None when the

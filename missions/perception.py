@@ -44,7 +44,7 @@ from eaglemission.config import TargetConfig
 from eaglemission.geometry import CameraModel, camera_pose_ned
 from eaglemission.interfaces import CameraView, Detector, Estimator, PlaneFitter
 from eaglemission.perception.appearance import TargetAppearance
-from eaglemission.perception.keep import TargetKeeper, box_detection, on_box
+from eaglemission.perception.keep import TargetKeeper, box_detection, box_of, on_box
 from eaglemission.recording.foxglove import saliency_thumbnail
 from eaglemission.types import (
     Detection,
@@ -372,17 +372,20 @@ def example_size_plausible(model: CameraModel, state: VehicleState, target: Targ
 
 
 def target_candidates(det: Detection | None, req: Request,
-                      appearance: TargetAppearance | None
+                      appearance: TargetAppearance | None, from_tracker: bool = False
                       ) -> Iterator[tuple[Detection | None, bool]]:
     """Stage 2b: the candidates for the target in this frame, best first, each with whether it
     is the target colour's region (True) or not (False); the pose stage measures the first it
-    can. ``det``: the detector's candidate, or the kept target.
+    can. ``det``: the detector's candidate, or the kept target (``from_tracker``: the
+    tracker's box).
 
     At close range, when the target's colour is known, the region of the target's colour near
-    the predicted pixel comes first when there is no other candidate, or when the fine
-    estimator is asked and the regions agree (:func:`regions_agree`: the colour region follows
-    the target's edges, a saliency threshold need not); otherwise after ``det``, when that one
-    cannot be measured.
+    the predicted pixel comes first when there is no other candidate, when the fine estimator
+    is asked and the regions agree (:func:`regions_agree`: the colour region follows the
+    target's edges, a saliency threshold need not), or when ``det`` is only the tracker's box
+    (at close range the target fills much of the view with little texture and the tracker's
+    box drifts off it; the colour region is measured on this frame); otherwise after ``det``,
+    when that one cannot be measured.
     """
     frame = req.frame
     colour = appearance if appearance is not None and appearance.has_colour else None
@@ -391,10 +394,13 @@ def target_candidates(det: Detection | None, req: Request,
             and bool(np.isfinite(near).all())):
         yield det, False
         return
-    if det is None or req.estimator == "fine":
+    if det is None or req.estimator == "fine" or from_tracker:
         region = colour.colour_region(frame, near)
-        if region is not None and (det is None or regions_agree(region, det)):
+        agree = region is not None and (det is None or regions_agree(region, det))
+        if region is not None and (agree or from_tracker):
             yield region, True
+            if not agree:
+                yield det, False
             return
         yield det, False
         if det is not None and region is not None:
@@ -404,6 +410,24 @@ def target_candidates(det: Detection | None, req: Request,
     region = colour.colour_region(frame, near)
     if region is not None:
         yield region, True
+
+
+def example_likeness(appearance: TargetAppearance | None, image: NDArray[np.uint8]
+                     ) -> Callable[[tuple[float, float]], float] | None:
+    """How much ``image`` looks like the target's example image at a pixel, for the keeper to
+    tell the kept box from a detection elsewhere: the example's match
+    (:meth:`TargetAppearance.example_match`), or -1 below ``appearance.example.match_min_ncc``
+    (there the example does not say which is the target: a target a few pixels across matches
+    the example at its own scale no better than the ground); None without an example."""
+    if appearance is None or appearance.image is None:
+        return None
+    floor = appearance.example_config.match_min_ncc or -1.0
+
+    def likeness(centre_px: tuple[float, float]) -> float:
+        ncc = appearance.example_match(image, centre_px)
+        return ncc if ncc >= floor else -1.0
+
+    return likeness
 
 
 def _prior(camera_id: str, wide_id: str = "wide") -> TargetPrior:
@@ -447,24 +471,22 @@ class Perception:
             # (it moves there only as its switching rule allows)
             det = choose_detection(result, unaided, tools.appearance, self.p, self.target,
                                    tools.fitter is not None)
-        likeness = None
-        if tools.appearance is not None and tools.appearance.image is not None:
-            image, appearance = np.asarray(frame.image), tools.appearance
-
-            def likeness(centre_px: tuple[float, float]) -> float:
-                return appearance.example_match(image, centre_px)
-
+        likeness = example_likeness(tools.appearance, np.asarray(frame.image))
         kept = None if keeper is None else keeper.step(frame, det, ran, likeness)
         if kept is not None:
             det = kept.detection
+        tracked = kept is not None and kept.from_tracker
         chosen: tuple[Detection | None, bool, Measured] | None = None
-        for cand, colour in target_candidates(det, req, tools.appearance):
+        for cand, colour in target_candidates(det, req, tools.appearance, tracked):
             measured = self.measure(cand, req, tools, colour)
             if chosen is None or measured[0] is not None:
                 chosen = (cand, colour, measured)  # the first, unless a later one measures
             if measured[0] is not None:
                 break
         det, from_colour, out = chosen or (None, False, NOT_MEASURED)
+        if tracked and from_colour and out[0] is not None and det is not None:
+            assert keeper is not None
+            keeper.correct(frame, box_of(det))  # the tracker follows the measured region
         est, prov, refined, failure, hint = out
         return Measurement(frame.camera_id, frame, state, req.estimator, det,
                            len(result.detections), from_colour,
@@ -473,7 +495,7 @@ class Perception:
                            None if anomaly or not self.thumbnails or not ran
                            else saliency_thumbnail(result.saliency),
                            ran, kept is not None and det is kept.detection,
-                           kept is not None and kept.from_tracker)
+                           kept is not None and kept.from_tracker and det is kept.detection)
 
     def measure(self, det: Detection | None, req: Request, tools: Tools, tracked: bool
                 ) -> Measured:

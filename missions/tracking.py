@@ -34,7 +34,7 @@ from eaglemission.missions.target_state import (
     plane_down_m,
     vertical_reference,
 )
-from eaglemission.missions.views import CameraChoice, ChoiceParams
+from eaglemission.missions.views import CameraChoice, ChoiceParams, project_target
 
 from eaglemission.config import MissionFile
 from eaglemission.geometry import CameraModel, camera_pose_ned, down_axis_cos_tilt
@@ -347,6 +347,11 @@ class TargetTracking:
                 self.choice.update_coarse(state, filt.position_ned_m, cam_id, det)
             elif pol.camera_choice == "fine":
                 switched = self.choice.update_fine(state, filt.position_ned_m, cam_id, now_ns)
+                if self.arm is not None and self.choice.expected_visible:
+                    # behind the tool the target is out of sight, not lost
+                    fine = self.models[self.choice.fine_camera]
+                    self.choice.expected_visible = not self.arm.covers(
+                        fine, project_target(fine, state, filt.position_ned_m))
                 if switched is not None:
                     self.log.write("event", source="mission",
                                    text=f"fine approach image source -> {switched}")

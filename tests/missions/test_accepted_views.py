@@ -87,3 +87,42 @@ def test_a_fit_that_explains_its_detection_poorly_feeds_the_filter_not_the_arm()
     assert t.latest_fix is not None and t.latest_fix[1] == near
     _view(t, 13 * 10**8, near, 27.0, fit_cost=None)  # not a plane fit (fitter off)
     assert t.latest_fix[0] == 13 * 10**8
+
+
+@pytest.mark.parametrize("behind_tool", [True, False])
+def test_a_target_behind_the_tool_is_out_of_sight_not_lost(behind_tool: bool) -> None:
+    """In the wide camera the target lies on the line of sight through the arm's tool (as in a
+    descent towards it): the mission does not expect to see it, so no loss is declared while
+    the tool hides it; a metre aside it is expected in view."""
+    from eaglemission.lab.manipulators.simulated_arm import SimulatedArm, SimulatedArmConfig
+    from eaglemission.missions.arm import ArmTracking
+    from eaglemission.missions.log import MissionLog
+    from eaglemission.missions.views import project_target
+
+    from eaglemission.clock import ManualClock
+    from eaglemission.geometry import camera_pose_ned
+
+    t = target_tracking()
+    home = t.cfg.tool_point_m
+    vs = VehicleState(10**9, (10.0, 1.0, -1.6), (0.0, 0.0, 0.0), euler_to_quat(0, 0, 0),
+                      in_air=True, armed=True)
+    arm = SimulatedArm(SimulatedArmConfig(), clock=ManualClock(), tool_point_m=home)
+    t.arm = ArmTracking(arm, MissionLog(None, now_ns=lambda: 0), grasp_distance_m=0.175,
+                        command_s=1.0, period_s=0.05, state=lambda: (vs, TARGET))
+    wide = t.models["wide"]
+    cam = np.asarray(camera_pose_ned(wide, vs.position_ned_m, vs.attitude_q).t)
+    tool = np.asarray(vs.position_ned_m) + np.asarray(home)  # level, heading north
+    ray = tool - cam
+    k = (-0.15 - cam[2]) / ray[2]  # on to the target's top, 0.15 m above the ground
+    target = tuple(float(x) for x in cam + k * ray)
+    if not behind_tool:
+        target = (target[0], target[1] + 1.0, target[2])
+    assert np.isfinite(project_target(wide, vs, target)).all()
+    t.choice.fine_camera = "wide"
+    t.filter.update(target, 0.01, 10**9)
+    frame = Frame(np.zeros((4, 4, 3), np.uint8), 10**9, "wide", 10)
+    est = TargetEstimate(target, (0.0, 0.0, 2.0), 10**9, "wide", "rpnp", std_m=0.02)
+    meas = Measurement("wide", frame, vs, "fine", None, 1, False, est, Provenance.FINE,
+                       False, None, None, 1.0)
+    t.apply(meas, POLICIES[S.FINE_DESCENT], vs, 10**9, 1.0)
+    assert t.choice.expected_visible is not behind_tool

@@ -141,3 +141,20 @@ def test_a_view_the_tool_covers_is_the_arms_not_the_targets() -> None:
     assert t.hides(model, around)
     aside = [(u + 300, v), (u + 400, v), (u + 400, v + 100), (u + 300, v + 100)]
     assert not t.hides(model, aside)
+
+
+def test_the_tool_covers_what_lies_behind_it_in_the_cameras_view() -> None:
+    from eaglemission.missions.views import project_target
+
+    from eaglemission.config import load_config
+
+    clock = ManualClock()
+    at = _vs(TARGET[0] - 2.5, TARGET[1], TARGET[2] - 1.5)
+    t = _tracking(clock, at)
+    model = load_config().cameras.wide.to_model("wide")
+    tool_ned = (at.position_ned_m[0] + HOME[0], at.position_ned_m[1] + HOME[1],
+                at.position_ned_m[2] + HOME[2])
+    u, v = project_target(model, at, tool_ned)
+    assert t.covers(model, (u, v)) and t.covers(model, (u + 10, v + 10))
+    assert not t.covers(model, (u + 200, v))
+    assert not t.covers(model, (float("nan"), v))

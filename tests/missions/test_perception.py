@@ -15,6 +15,7 @@ from eaglemission.missions.perception import (
     Provenance,
     Request,
     Tools,
+    example_likeness,
     follow_candidate,
     inside_polygon,
 )
@@ -216,3 +217,79 @@ def test_a_candidate_is_followed_on_its_box_then_by_its_example_then_dropped() -
     assert follow_candidate(only_elsewhere, box, gone, appearance, anything, 0.5) is None
     # without an example image only a detection on the box follows it
     assert follow_candidate(only_elsewhere, box, frame, None, anything, None) is None
+
+
+class NoDetections:
+    """A detector that finds nothing (the target fills the view at close range)."""
+
+    def detect(self, frame, prior=None):
+        return DetectionResult(np.zeros(frame.image.shape[:2], np.float32), (),
+                               frame.timestamp_ns, frame.camera_id, frame.seq)
+
+    def reset(self):
+        pass
+
+
+class DriftingTracker:
+    """A tracker whose every update answers one box (the box it drifted to)."""
+
+    def __init__(self, drifted):
+        self.drifted, self.starts = drifted, []
+
+    def start(self, frame, box_px):
+        self.starts.append(tuple(box_px))
+
+    def update(self, frame):
+        return self.drifted
+
+
+@pytest.mark.parametrize("drift_px", [0.0, 200.0])
+def test_close_range_measures_the_colour_region_where_the_trackers_box_drifted_off_it(
+        scene, drift_px) -> None:
+    """At close range, the detector finding nothing: the tracker's box kept the target so far,
+    and on this frame it moved ``drift_px`` to the right, off the target's colour region. The
+    region near the kept box is measured (not the tracker's box), it becomes the kept box and
+    the tracker restarts on it once the two overlap little."""
+    import cv2
+
+    from eaglemission.perception.keep import KeepConfig, TargetKeeper, box_of
+
+    model, target, top, det, state, frame = scene
+    image = frame.image.copy()
+    poly = np.round(np.asarray(det.corners_px, np.float64)).astype(np.int32)
+    cv2.fillPoly(image, [poly], tuple(int(c) for c in target.color_bgr))
+    frame = Frame(image, frame.timestamp_ns, frame.camera_id, frame.seq)
+    on_target = box_of(det)
+    u0, v0, u1, v1 = on_target
+    drifted = (u0 + drift_px, v0, u1 + drift_px, v1)
+    tracker = DriftingTracker(drifted)
+    keeper = TargetKeeper(tracker, KeepConfig(confirm_frames=1, detect_every_frames=1))
+    keeper.step(frame, det, True)  # confirmed on the target: the tracker starts there
+    assert keeper.keeping and tracker.starts == [on_target]
+    tools = Tools(NoDetections(), FixedEstimator((0.0, 0.0, 0.0)),
+                  FixedEstimator((9.0, 9.0, 9.0)), None, TargetAppearance.of_target(target),
+                  keeper)
+    req = Request(frame, model, state, "fine", None, True, None, PlaneState(0.0, 0.04))
+    m = Perception(PerceptionConfig(), target).perceive(req, tools)
+    assert m.colour_tracked and m.estimate is not None and not m.from_tracker
+    np.testing.assert_allclose(m.detection.center_px, det.center_px, atol=3.0)
+    assert m.estimate.position_ned_m == (9.0, 9.0, 9.0)  # the fine estimator's, on the region
+    np.testing.assert_allclose(keeper.box, box_of(m.detection))
+    if drift_px:
+        assert len(tracker.starts) == 2  # restarted on the region
+        np.testing.assert_allclose(tracker.starts[-1], box_of(m.detection))
+    else:
+        assert len(tracker.starts) == 1  # on the region already: it goes on
+
+
+def test_the_example_arbitrates_only_where_it_matches_at_least_match_min_ncc() -> None:
+    example = _textured_patch(2)
+    image = np.full((240, 320, 3), 90, np.uint8)
+    image[100:130, 200:230] = example
+    image[20:50, 20:50] = _textured_patch(3)  # texture, not the example
+    likeness = example_likeness(TargetAppearance(image=example), image)
+    assert likeness is not None
+    assert likeness((214.5, 114.5)) > 0.9  # on the example
+    assert likeness((34.5, 34.5)) == -1.0  # below match_min_ncc: says nothing
+    assert example_likeness(TargetAppearance(), image) is None  # no example image
+    assert example_likeness(None, image) is None

@@ -122,6 +122,14 @@ def test_with_an_example_a_detection_elsewhere_must_look_more_like_it_to_move_th
     assert kept is not None and not kept.from_tracker  # now the other looks more like it
 
 
+def test_where_the_example_tells_neither_apart_the_detector_moves_the_keeper():
+    tr = ScriptedTracker([(50, 35, 60, 45)] * 4)
+    k = TargetKeeper(tr, KeepConfig(confirm_frames=1, detect_every_frames=1, switch_after=1))
+    k.step(FRAME, det_at(55, 40), True)
+    kept = k.step(FRAME, det_at(150, 40), True, lambda c: -1.0)  # neither looks like it
+    assert kept is not None and not kept.from_tracker and kept.detection.center_px == (150, 40)
+
+
 def test_a_lost_target_hands_over_to_the_detector_then_searching():
     tr = ScriptedTracker([None, None])
     k = TargetKeeper(tr, KeepConfig(confirm_frames=1, detect_every_frames=5))
@@ -162,3 +170,15 @@ def test_a_tracker_that_cannot_start_reports_the_target_lost():
     f = _frames(2)[0]
     tracker.start(f, (10.0, 10.0, 11.0, 11.0))  # below a pixel once reduced
     assert tracker.update(f) is None
+
+
+def test_a_measured_region_of_the_target_corrects_the_kept_box():
+    tr = ScriptedTracker([])
+    k = TargetKeeper(tr, KeepConfig(confirm_frames=1, restart_iou=0.3))
+    k.correct(FRAME, (0, 0, 10, 10))
+    assert not k.keeping and tr.starts == []  # nothing kept: nothing to correct
+    k.step(FRAME, det_at(50, 40), True)
+    k.correct(FRAME, (46, 35, 56, 45))  # overlaps the kept box well: the tracker goes on
+    assert k.box == (46, 35, 56, 45) and len(tr.starts) == 1
+    k.correct(FRAME, (80, 35, 90, 45))  # elsewhere: the tracker restarts on it
+    assert k.box == (80, 35, 90, 45) and tr.starts[-1] == (80, 35, 90, 45)
