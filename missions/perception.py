@@ -412,24 +412,6 @@ def target_candidates(det: Detection | None, req: Request,
         yield region, True
 
 
-def example_likeness(appearance: TargetAppearance | None, image: NDArray[np.uint8]
-                     ) -> Callable[[tuple[float, float]], float] | None:
-    """How much ``image`` looks like the target's example image at a pixel, for the keeper to
-    tell the kept box from a detection elsewhere: the example's match
-    (:meth:`TargetAppearance.example_match`), or -1 below ``appearance.example.match_min_ncc``
-    (there the example does not say which is the target: a target a few pixels across matches
-    the example at its own scale no better than the ground); None without an example."""
-    if appearance is None or appearance.image is None:
-        return None
-    floor = appearance.example_config.match_min_ncc or -1.0
-
-    def likeness(centre_px: tuple[float, float]) -> float:
-        ncc = appearance.example_match(image, centre_px)
-        return ncc if ncc >= floor else -1.0
-
-    return likeness
-
-
 def _prior(camera_id: str, wide_id: str = "wide") -> TargetPrior:
     return TargetPrior(min_area_px=12.0 if camera_id == wide_id else 100.0)
 
@@ -471,7 +453,13 @@ class Perception:
             # (it moves there only as its switching rule allows)
             det = choose_detection(result, unaided, tools.appearance, self.p, self.target,
                                    tools.fitter is not None)
-        likeness = example_likeness(tools.appearance, np.asarray(frame.image))
+        likeness = None
+        if tools.appearance is not None and tools.appearance.image is not None:
+            image, appearance = np.asarray(frame.image), tools.appearance
+
+            def likeness(centre_px: tuple[float, float]) -> float:
+                return appearance.example_match(image, centre_px)
+
         kept = None if keeper is None else keeper.step(frame, det, ran, likeness)
         if kept is not None:
             det = kept.detection

@@ -11,8 +11,8 @@ One :class:`TargetKeeper` per camera, a small state machine:
   at close range, where the pose wants the detector's region) the detector re-checks. A chosen
   detection on the kept box is the target (the tracker restarts on it when their boxes overlap
   less than ``restart_iou``: drift, a change of size); one elsewhere in ``switch_after``
-  re-checks in a row moves the keeper to it (with an example image of the target, unless the
-  tracker's box looks more like the example: the detector may prefer another object);
+  re-checks in a row moves the keeper to it (with an example image of the target, only when it
+  looks more like the example than the tracker's box: the detector may prefer another object);
   a tracker that loses the target hands the frame to the detector, and without a detection on
   it the keeper searches again.
 
@@ -136,8 +136,8 @@ class TargetKeeper:
         """The kept target in ``frame`` (None while searching). ``detected``: the detector ran
         on this frame; ``chosen``: its chosen detection (None: none); ``likeness``: how much
         the frame at a pixel looks like the target's example image (None: no example): a
-        detection elsewhere does not move the keeper while the tracker's box looks more like
-        the example."""
+        detection elsewhere moves the keeper only if it looks more like the example than the
+        tracker's box does."""
         if not self.keeping:
             return self._search(frame, chosen) if detected else None
         tracked = self.tracker.update(frame)
@@ -156,8 +156,8 @@ class TargetKeeper:
                 self.tracker.start(frame, box)
             self.box = box
             return Kept(chosen, False)
-        if chosen is not None and (tracked is None or likeness is None or not likeness(
-                _centre(tracked)) > likeness(chosen.center_px)):
+        if chosen is not None and (tracked is None or likeness is None or likeness(
+                chosen.center_px) > likeness(_centre(tracked))):
             self._off += 1
             if self._off >= self.config.switch_after:  # the detector insists: move to it
                 self._off = 0

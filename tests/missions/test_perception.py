@@ -15,7 +15,6 @@ from eaglemission.missions.perception import (
     Provenance,
     Request,
     Tools,
-    example_likeness,
     follow_candidate,
     inside_polygon,
 )
@@ -281,15 +280,3 @@ def test_close_range_measures_the_colour_region_where_the_trackers_box_drifted_o
     else:
         assert len(tracker.starts) == 1  # on the region already: it goes on
 
-
-def test_the_example_arbitrates_only_where_it_matches_at_least_match_min_ncc() -> None:
-    example = _textured_patch(2)
-    image = np.full((240, 320, 3), 90, np.uint8)
-    image[100:130, 200:230] = example
-    image[20:50, 20:50] = _textured_patch(3)  # texture, not the example
-    likeness = example_likeness(TargetAppearance(image=example), image)
-    assert likeness is not None
-    assert likeness((214.5, 114.5)) > 0.9  # on the example
-    assert likeness((34.5, 34.5)) == -1.0  # below match_min_ncc: says nothing
-    assert example_likeness(TargetAppearance(), image) is None  # no example image
-    assert example_likeness(None, image) is None

@@ -122,14 +122,6 @@ def test_with_an_example_a_detection_elsewhere_must_look_more_like_it_to_move_th
     assert kept is not None and not kept.from_tracker  # now the other looks more like it
 
 
-def test_where_the_example_tells_neither_apart_the_detector_moves_the_keeper():
-    tr = ScriptedTracker([(50, 35, 60, 45)] * 4)
-    k = TargetKeeper(tr, KeepConfig(confirm_frames=1, detect_every_frames=1, switch_after=1))
-    k.step(FRAME, det_at(55, 40), True)
-    kept = k.step(FRAME, det_at(150, 40), True, lambda c: -1.0)  # neither looks like it
-    assert kept is not None and not kept.from_tracker and kept.detection.center_px == (150, 40)
-
-
 def test_a_lost_target_hands_over_to_the_detector_then_searching():
     tr = ScriptedTracker([None, None])
     k = TargetKeeper(tr, KeepConfig(confirm_frames=1, detect_every_frames=5))
