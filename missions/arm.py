@@ -156,11 +156,16 @@ class ArmTracking:
         r = self.tool_radius_m if radius_m is None else radius_m
         return tool_footprint_px(model, tool, r, self.marker)
 
+    def _covering_px(self, model: CameraModel) -> npt.NDArray[np.float32] | None:
+        """The footprint :meth:`hides` and :meth:`covers` judge by: at least
+        :data:`TOOL_RADIUS_M` around the tool (the slide above the gripper too)."""
+        return self.footprint_px(model, max(self.tool_radius_m, TOOL_RADIUS_M))
+
     def hides(self, model: CameraModel, corners_px: npt.ArrayLike) -> bool:
         """The tool's footprint, at least :data:`TOOL_RADIUS_M` around the tool (the slide
         above the gripper too), overlaps the rectangle around a detection's corners: that view
         of the target is partly the arm's (its outline is not the target's shape)."""
-        foot = self.footprint_px(model, max(self.tool_radius_m, TOOL_RADIUS_M))
+        foot = self._covering_px(model)
         if foot is None:
             return False
         c = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
@@ -172,7 +177,7 @@ class ArmTracking:
         """The tool's footprint, at least :data:`TOOL_RADIUS_M` around the tool, covers the
         image point ``point_px``: what lies there beyond the tool is out of ``model``'s sight."""
         p = np.asarray(point_px, dtype=np.float64).reshape(-1)
-        foot = self.footprint_px(model, max(self.tool_radius_m, TOOL_RADIUS_M))
+        foot = self._covering_px(model)
         if foot is None or not np.isfinite(p).all():
             return False
         return bool(cv2.pointPolygonTest(foot.reshape(-1, 1, 2).astype(np.float32),
