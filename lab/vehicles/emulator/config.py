@@ -161,7 +161,9 @@ class EmulatorSnapshot:
 
 @dataclass(frozen=True)
 class Traffic:
-    """One recorded message: wall time, direction ('out' = emulator -> client), message."""
+    """One recorded message: wall time, direction ('out' = emulator -> client), message, and
+    the emulator's time (PX4's clock): for a message sent, that of the vehicle step that sent
+    it (a land detector's STATUSTEXT carries its step's time, whatever the tick's length)."""
 
     wall_s: float
     direction: str

@@ -153,6 +153,16 @@ def message_handlers(e: Px4Emulator) -> dict[str, Callable[[Any], None]]:
     }
 
 
+def _model_params(cfg: EmulatorConfig) -> dict[str, float]:
+    """The PX4 parameters the vehicle model's dynamics set (unless the config sets them)."""
+    dp = cfg.dynamics
+    return {"MPC_XY_CRUISE": dp.cruise_speed_mps, "MPC_XY_VEL_MAX": dp.max_horizontal_speed_mps,
+            "MPC_Z_VEL_MAX_UP": dp.max_up_speed_mps, "MPC_Z_VEL_MAX_DN": dp.max_down_speed_mps,
+            "MPC_Z_V_AUTO_UP": dp.max_up_speed_mps, "MPC_Z_V_AUTO_DN": dp.max_down_speed_mps,
+            "MPC_TKO_SPEED": dp.takeoff_speed_mps, "MPC_LAND_SPEED": dp.land_speed_mps,
+            "MPC_YAWRAUTO_MAX": dp.max_yaw_rate_degps, "MAV_SYS_ID": cfg.sysid}
+
+
 class Px4Emulator:
     """PX4-like multicopter over MAVLink 2. Use as a context manager or ``start()``/``stop()``.
 
@@ -183,17 +193,7 @@ class Px4Emulator:
         off = cfg.home_in_origin_ned_m
         self.origin = ned_to_geodetic(self.home, -off[0], -off[1], -off[2])
         self.home_local = off  # home in the EKF-origin frame
-        dp = cfg.dynamics
-        model_params = {"MPC_XY_CRUISE": dp.cruise_speed_mps,
-                        "MPC_XY_VEL_MAX": dp.max_horizontal_speed_mps,
-                        "MPC_Z_VEL_MAX_UP": dp.max_up_speed_mps,
-                        "MPC_Z_VEL_MAX_DN": dp.max_down_speed_mps,
-                        "MPC_Z_V_AUTO_UP": dp.max_up_speed_mps,
-                        "MPC_Z_V_AUTO_DN": dp.max_down_speed_mps,
-                        "MPC_TKO_SPEED": dp.takeoff_speed_mps,
-                        "MPC_LAND_SPEED": dp.land_speed_mps,
-                        "MPC_YAWRAUTO_MAX": dp.max_yaw_rate_degps,
-                        "MAV_SYS_ID": cfg.sysid}
+        model_params = _model_params(cfg)
         self.params: dict[str, list[float]] = {
             k: [float(cfg.params.get(k, model_params.get(k, v))), float(t)]
             for k, (v, t) in known.items()
@@ -223,6 +223,7 @@ class Px4Emulator:
         self.streams = Streams(stream_rates_hz(cfg))
         self._handlers = message_handlers(self)
         self._t = 0.0
+        self._in_step = False  # inside the vehicle's steps (what is sent carries their time)
         self._last_wall = 0.0
         self.setpoint_wall = -math.inf
         self._last_gcs_hb = -math.inf
@@ -399,8 +400,9 @@ class Px4Emulator:
         data = msg.pack(self._mav)
         self._mav.seq = (self._mav.seq + 1) % 256
         now = time.monotonic()
-        if self._record:
-            self.traffic.append(Traffic(now, "out", msg, self._t))
+        if self._record:  # sent from a vehicle step: that step's time, not the tick's end
+            sent_s = self.dyn.time_ns * 1e-9 if self._in_step else self._t
+            self.traffic.append(Traffic(now, "out", msg, sent_s))
         self._link.send(data, now)
 
     def send(self, name: str) -> None:
@@ -476,7 +478,9 @@ class Px4Emulator:
             return
         self._t += dt
         self._check_datalink()
+        self._in_step = True
         self.dyn.step(dt, self.autopilot.on_step)
+        self._in_step = False
 
     def _check_datalink(self) -> None:
         """Data link loss (COM_DL_LOSS_T, NAV_DLL_ACT). The client's 1 Hz heartbeats are wall
