@@ -138,7 +138,7 @@ async def main(args: argparse.Namespace) -> int:
     truth = inner.ground_truth()
     print(f"PX4 {version['flight_sw_version']} {version['flight_sw_version_type']} "
           f"(git {version['flight_sw_git_hash']}), {args.config}, truth altitude "
-          f"{inner.config.ground_truth_altitude}"
+          f"{inner.config.ground_truth_altitude}, horizontal {inner.config.ground_truth_horizontal}"
           + (f"; TRUTH PROBLEM: {truth.problem}" if truth is not None and truth.problem else ""))
     print(f"PX4 hover at {args.height_m:g} m above the ground, {args.hold_s:g} s per mode "
           "(truth: HIL_STATE_QUATERNION)")

@@ -10,7 +10,10 @@ attitude (w may be negative). A real aircraft sends none.
 With jMAVSim, PX4 passes on what jMAVSim sends: ``alt`` is 1000 x its NED z (0 on the ground,
 -3000 at 3 m up), not AMSL, so the driver's ``ground_truth_altitude: ned_z`` reads it as minus
 the height; its ``lat``/``lon`` are jMAVSim's simulated GPS position (the true one plus a
-correlated noise of about 1 cm per axis); velocity and attitude are true.
+random walk of about 1 cm per axis, correlated over about 0.1 s), so the driver's
+``ground_truth_horizontal: velocity`` integrates the true velocity instead, held to
+``lat``/``lon`` over :data:`ANCHOR_S` (:class:`AnchoredHorizontal`); velocity and attitude are
+true.
 
 :class:`HilTruth` turns the samples into NED metres relative to the first sample (the true
 start point, where the synthetic world's origin is: the vehicle is on the ground when the
@@ -34,6 +37,19 @@ MSG_ID = 115
 MAX_EXTRAPOLATION_NS = 100_000_000
 ALTITUDES = ("amsl", "ned_z")
 """What ``alt`` holds: the altitude above mean sea level, or the simulator's NED z (down)."""
+HORIZONTALS = ("latlon", "velocity")
+"""Where the horizontal position comes from: ``lat``/``lon``, or the velocity integrated and held
+to ``lat``/``lon`` (:class:`AnchoredHorizontal`)."""
+ANCHOR_S = 1.0
+"""Time constant holding the integrated velocity to ``lat``/``lon``: jMAVSim's GPS noise (about
+1 cm, correlated over about 0.1 s) passes at about a third, a velocity bias of b m/s becomes a
+position bias of b x 1 s."""
+VELOCITY_STEP_MPS = 0.01
+"""The message's velocity unit (cm/s). PX4 casts its float velocity to it, truncating toward
+zero, and so does jMAVSim before it: a reading of k steps (k != 0) stands for k + 1/2 steps on
+average."""
+MAX_INTEGRATION_GAP_S = 0.5
+"""A longer gap between samples restarts the integration at ``lat``/``lon``."""
 CHECK_TRAVEL_M = 1.0
 """Vertical travel (integrated from the messages' own vertical velocity) after which the
 altitude's sense is judged: a take-off climbs further than this."""
@@ -62,6 +78,43 @@ def parse_hil_state(fields: dict[str, Any], altitude: str = "amsl"
         raise ValueError("HIL_STATE_QUATERNION: zero attitude quaternion")
     sign = -1.0 if q[0] < 0 else 1.0
     return geo, vel, (sign * q[0] / n, sign * q[1] / n, sign * q[2] / n, sign * q[3] / n)
+
+
+def untruncated_mps(reading_mps: float) -> float:
+    """The mean velocity behind a reading truncated toward zero to whole
+    :data:`VELOCITY_STEP_MPS` (a zero reading stands for anything in (-1, 1) steps: 0)."""
+    if abs(reading_mps) < 0.5 * VELOCITY_STEP_MPS:
+        return 0.0
+    return reading_mps + math.copysign(0.5 * VELOCITY_STEP_MPS, reading_mps)
+
+
+class AnchoredHorizontal:
+    """The horizontal position from the true velocity, held to a noisy position: a
+    complementary filter, ``x = x_pred + dt / (anchor_s + dt) * (measured - x_pred)`` with
+    ``x_pred`` the last position plus the mean of the two velocities times dt. Velocity
+    readings are taken as truncated (:func:`untruncated_mps`)."""
+
+    def __init__(self, anchor_s: float = ANCHOR_S) -> None:
+        if not anchor_s > 0:
+            raise ValueError(f"anchor_s: must be > 0, got {anchor_s}")
+        self.anchor_s = anchor_s
+        self._last: tuple[float, float, float, float, float] | None = None  # t n e vn ve
+
+    def update(self, t_s: float, north_m: float, east_m: float, vn_mps: float,
+               ve_mps: float) -> tuple[float, float]:
+        """One sample (time, measured position, velocity reading); returns the position."""
+        vn, ve = untruncated_mps(vn_mps), untruncated_mps(ve_mps)
+        last = self._last
+        dt = -1.0 if last is None else t_s - last[0]
+        if last is None or not 0.0 < dt <= MAX_INTEGRATION_GAP_S:
+            n, e = north_m, east_m
+        else:
+            pn = last[1] + 0.5 * (vn + last[3]) * dt
+            pe = last[2] + 0.5 * (ve + last[4]) * dt
+            k = dt / (self.anchor_s + dt)
+            n, e = pn + k * (north_m - pn), pe + k * (east_m - pe)
+        self._last = (t_s, n, e, vn, ve)
+        return n, e
 
 
 class AltitudeSense:
@@ -102,21 +155,28 @@ class HilTruth:
 
     ``flags()`` gives (armed, in_air, mode) from the autopilot's telemetry at the time of a
     sample (the truth message has none; the evaluator needs them). ``altitude`` says what the
-    messages' ``alt`` holds (:data:`ALTITUDES`); ``on_problem`` is told, once, when the altitude
-    moves against the messages' vertical velocity (:class:`AltitudeSense`).
+    messages' ``alt`` holds (:data:`ALTITUDES`), ``horizontal`` where the horizontal position
+    comes from (:data:`HORIZONTALS`); ``on_problem`` is told, once, when the altitude moves
+    against the messages' vertical velocity (:class:`AltitudeSense`).
     """
 
     description = "HIL_STATE_QUATERNION from the autopilot (simulator ground truth)"
 
     def __init__(self, flags: Callable[[], tuple[bool, bool, FlightMode]] | None = None,
                  max_s: float = 7200.0, rate_hz: float = 50.0, *, altitude: str = "amsl",
+                 horizontal: str = "latlon",
                  on_problem: Callable[[str], None] | None = None) -> None:
         if altitude not in ALTITUDES:
             raise ValueError(f"altitude {altitude!r}: use one of {', '.join(ALTITUDES)}")
+        if horizontal not in HORIZONTALS:
+            raise ValueError(f"horizontal {horizontal!r}: use one of {', '.join(HORIZONTALS)}")
         self.altitude = altitude
-        if altitude == "ned_z":
+        readings = (["alt read as NED z"] if altitude == "ned_z" else []) + (
+            ["horizontal from its velocity"] if horizontal == "velocity" else [])
+        if readings:
             self.description = ("HIL_STATE_QUATERNION from the autopilot (simulator ground "
-                                "truth; alt read as NED z)")
+                                f"truth; {', '.join(readings)})")
+        self._horizontal = AnchoredHorizontal() if horizontal == "velocity" else None
         self._on_problem = on_problem
         self.sense = AltitudeSense()
         self.problem: str | None = None
@@ -149,6 +209,8 @@ class HilTruth:
             if self.origin is None:
                 self.origin = geo
             n, e, d = geodetic_to_ned(self.origin, geo)
+            if self._horizontal is not None:
+                n, e = self._horizontal.update(stamp_ns * 1e-9, n, e, vel[0], vel[1])
             self._t.append(int(stamp_ns))
             for col, v in zip(self._c, (n, e, d, *vel, *q)):
                 col.append(float(v))

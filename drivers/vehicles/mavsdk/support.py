@@ -90,6 +90,11 @@ class MavsdkVehicleConfig(BaseModel):
     its origin (PX4 passes jMAVSim's on unchanged). The truth is measured from its first sample
     either way. A wrong choice shows as an altitude moving against the message's own vertical
     velocity: the driver then warns and records a ``truth`` event naming this param."""
+    ground_truth_horizontal: Literal["latlon", "velocity"] = "latlon"
+    """Where the true horizontal position comes from: ``latlon``, the message's ``lat``/``lon``
+    (PX4 SIH, the emulator: the true position); ``velocity``, its true velocity integrated and
+    held to ``lat``/``lon`` with a 1 s time constant (jMAVSim, whose ``lat``/``lon`` are its
+    simulated GPS: the true position plus about 1 cm of noise per axis)."""
     confirm_modes: bool = True
     """After an accepted command, wait (bounded by ``confirm_timeout_s``) until telemetry shows
     its mode/armed state (PX4 sends HEARTBEAT at 1 Hz only, never on change: recorded, the new

@@ -137,6 +137,7 @@ class MavsdkVehicle:
         self._c = self.telemetry.cache
         self._now_ns: Callable[[], int] = time.monotonic_ns
         self._truth = (HilTruth(self.telemetry.truth_flags, altitude=cfg.ground_truth_altitude,
+                                horizontal=cfg.ground_truth_horizontal,
                                 on_problem=self._truth_problem)
                        if cfg.ground_truth == "auto" else None)
         self._truth_handle: Any = None

@@ -228,7 +228,9 @@ async def px4_backend(px4_sitl: Any) -> AsyncIterator[Px4Backend]:
     vehicle = MavsdkVehicle(MavsdkVehicle.Config(
         url=f"udpin://127.0.0.1:{relay.driver_addr[1]}", connect_timeout_s=30.0,
         watchdog_timeout_s=0.5,
-        ground_truth_altitude="ned_z" if px4_sitl.sim == "jmavsim" else "amsl"), clock=clock)
+        ground_truth_altitude="ned_z" if px4_sitl.sim == "jmavsim" else "amsl",
+        ground_truth_horizontal="velocity" if px4_sitl.sim == "jmavsim" else "latlon"),
+        clock=clock)
     try:
         await vehicle.connect()
     except BaseException:
