@@ -299,7 +299,7 @@ def test_fact_auto_disarm_2_02_s_after_landing_detected(px4_tlogs: Path) -> None
         hb = [s for _, s, _ in gcs.out("HEARTBEAT")]
     # COM_DISARM_LAND = 2 s of PX4's clock (the emulator's), which runs ~0.8 % slow against the
     # host's (fact 22: the emulator's clock_rate), so 2.02 s of the host's, as recorded
-    delay_host_s = (disarm - detected) / EmulatorConfig().clock_rate
+    delay_host_s = (disarm - detected) / gcs.emu.config.clock_rate
     assert abs(delay_host_s - statistics.mean(rec)) < 0.01, delay_host_s
     gaps = [b - a for a, b in zip(hb, hb[1:], strict=False)]
     assert min(gaps) > 0.9, f"a HEARTBEAT was sent on an arming / mode change: {gaps}"
